@@ -1,0 +1,33 @@
+# softforce: `make demo` and `make test` set everything up on a fresh machine, then run.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.softforce-installed
+OUT := out
+
+.PHONY: setup demo test lint bench clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml scripts/install_system_packages.sh
+	bash scripts/install_system_packages.sh
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	touch $(STAMP)
+
+demo: setup
+	bash scripts/demo.sh $(OUT)/demo
+
+test: setup
+	$(BIN)/pytest -q
+
+lint: setup
+	$(BIN)/ruff check softforce_cli tests scripts benchmarks
+
+bench: setup
+	$(BIN)/python benchmarks/run.py --output docs/benchmarks.md
+
+clean:
+	rm -rf $(OUT) .pytest_cache .ruff_cache

@@ -1,0 +1,1 @@
+"""RealSense capture (live and from .bag/.db3 files)."""

@@ -1,0 +1,124 @@
+"""`softforce model`: create, inspect and solve robot models."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+from rich.table import Table
+
+from softforce_cli.cli.common import ForceOption, JsonOption, print_json, stderr, stdout
+from softforce_cli.errors import ModelError
+
+app = typer.Typer(help="Create, inspect and solve robot models.", no_args_is_help=True)
+
+RobotArgument = Annotated[Path, typer.Argument(help="Robot model file (TOML).")]
+
+
+def parse_actuation(text: str) -> np.ndarray:
+    """'5,5,0,0' -> array; one value per cable, in the cable's control units."""
+    try:
+        return np.array([float(v) for v in text.split(",") if v.strip()], dtype=float)
+    except ValueError:
+        raise ModelError(f"--actuation {text!r}: expected comma-separated numbers, e.g. 5,5,0,0"
+                         ) from None
+
+
+@app.command("init")
+def init(
+    directory: Annotated[Path, typer.Argument(help="Folder to write diamond.toml and its mesh.")],
+    resolution: Annotated[str, typer.Option(help="coarse (~4.5k tets, for estimation) or fine "
+                                                 "(~18k tets, for ground truth).")] = "coarse",
+    force: ForceOption = False,
+) -> None:
+    """Write softforce's default robot: the procedural Diamond, meshed with gmsh."""
+    from softforce_cli.model.default_robot import write_default_robot
+
+    with stderr.status(f"meshing the {resolution} Diamond with gmsh..."):
+        path = write_default_robot(directory, resolution, force=force)
+    stderr.print(f"wrote [bold]{path}[/] and its mesh")
+
+
+@app.command("show")
+def show(
+    robot_file: RobotArgument,
+    json_output: JsonOption = False,
+    picture: Annotated[Path | None, typer.Option(help="Also save a PNG picture here.")] = None,
+    force: ForceOption = False,
+) -> None:
+    """Summarise a robot: nodes, tetrahedra, volume, mass, supports, cables, features."""
+    from softforce_cli.model.robot import load_robot
+    from softforce_cli.model.summary import robot_summary
+
+    robot = load_robot(robot_file)
+    summary = robot_summary(robot)
+    if picture is not None:
+        from softforce_cli.plots.robot_picture import save_robot_picture
+
+        save_robot_picture(robot, picture, force=force)
+        summary["picture"] = str(picture)
+    if json_output:
+        print_json(summary)
+        return
+    table = Table(title=f"robot {summary['name']}", show_header=False)
+    table.add_row("file", summary["source"])
+    table.add_row("mesh", summary["mesh"])
+    table.add_row("nodes / tetrahedra", f"{summary['nodes']} / {summary['tetrahedra']}")
+    table.add_row("volume", f"{summary['volume_mm3'] / 1e3:.1f} cm^3")
+    table.add_row("mass", f"{summary['mass_kg']:.3f} kg")
+    material = summary["material"]
+    table.add_row("material", f"{material['law']}, E = {material['young_modulus_mpa']} MPa, "
+                              f"nu = {material['poisson_ratio']}, g = {material['gravity_mm_s2']}")
+    table.add_row("fixed nodes", str(summary["fixed_nodes"]))
+    for cable in summary["cables"]:
+        table.add_row(f"cable {cable['name']}", f"{cable['control']} in [{cable['min']}, "
+                                                f"{cable['max']}], pull {cable['pull_point_mm']}")
+    table.add_row("feature points", str(summary["features"]))
+    table.add_row("markers", ", ".join(summary["markers"]) or "none")
+    if picture is not None:
+        table.add_row("picture", str(picture))
+    stdout.print(table)
+
+
+@app.command("solve")
+def solve(
+    robot_file: RobotArgument,
+    output: Annotated[Path, typer.Option("-o", "--output",
+                                         help="Deformed mesh (.vtu or any meshio format).")],
+    actuation: Annotated[str | None, typer.Option(help="One value per cable, comma-separated, "
+                                                       "in mm or N (the cable's control).")] = None,
+    json_output: JsonOption = False,
+    force: ForceOption = False,
+) -> None:
+    """Static equilibrium for an actuation; write the deformed mesh in the robot frame."""
+    from softforce_cli.fem.statics import solve_equilibrium
+    from softforce_cli.io.atomic import check_writable
+    from softforce_cli.io.mesh_output import write_deformed_mesh
+    from softforce_cli.model.robot import load_robot
+    from softforce_cli.model.summary import equilibrium_summary
+
+    check_writable(output, force)
+    robot = load_robot(robot_file)
+    values = np.zeros(len(robot.cable_specs)) if actuation is None else parse_actuation(actuation)
+    inputs = robot.cable_inputs(values)
+    with stderr.status("solving static equilibrium..."):
+        equilibrium = solve_equilibrium(robot.fe_model, inputs)
+    write_deformed_mesh(output, robot.mesh, equilibrium.positions_mm, force=force)
+    summary = {"output": str(output), "actuation": values.tolist(),
+               **equilibrium_summary(robot, equilibrium)}
+    if json_output:
+        print_json(summary)
+        return
+    table = Table(title=f"equilibrium of {robot.name}", show_header=False)
+    table.add_row("max displacement", f"{summary['max_displacement_mm']:.3f} mm "
+                                      f"(node {summary['max_displacement_node']})")
+    table.add_row("top node displacement", f"{summary['top_node_displacement_mm']} mm")
+    for cable in summary["cables"]:
+        table.add_row(f"cable {cable['name']}", f"{cable['displacement_mm']:.3f} mm, "
+                                                f"{cable['tension_n']:.4f} N")
+    table.add_row("support reaction", f"{summary['reaction_force_n']} N")
+    table.add_row("Newton iterations", str(summary["newton_iterations"]))
+    table.add_row("written", str(output))
+    stdout.print(table)

@@ -1,0 +1,1 @@
+"""Finite element core: pure, vectorised functions on numpy arrays (numpy/scipy only)."""

@@ -1,0 +1,70 @@
+"""Sparse assembly with a sparsity pattern computed once per mesh.
+
+Assembling a matrix is then one `np.bincount` over the element entries into the CSR data
+array: no Python loop over elements and no COO sort per assembly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+
+def element_dofs(tets: np.ndarray) -> np.ndarray:
+    """Global dof numbers of each element, node-major: (m, 4) -> (m, 12), dof = 3 node + i."""
+    return (3 * tets[:, :, None] + np.arange(3)).reshape(len(tets), 12)
+
+
+@dataclass(frozen=True)
+class ReducedPattern:
+    """Where each element stiffness entry lands in the CSR matrix over the free dofs.
+
+    free_dofs : (f,) global dofs kept, sorted; the others are fixed (Dirichlet).
+    reduced_index : (3n,) position of each global dof among free_dofs, -1 if fixed.
+    slot      : (e,) position in the CSR data array of each kept element entry.
+    keep      : (m * 144,) bool, which element entries couple two free dofs.
+    indices, indptr : the CSR structure, shape (f, f).
+    """
+
+    free_dofs: np.ndarray
+    reduced_index: np.ndarray
+    slot: np.ndarray
+    keep: np.ndarray
+    indices: np.ndarray
+    indptr: np.ndarray
+
+    @classmethod
+    def build(cls, tets: np.ndarray, node_count: int, fixed_nodes: np.ndarray) -> ReducedPattern:
+        reduced = np.full(3 * node_count, -1)
+        fixed = np.zeros(3 * node_count, dtype=bool)
+        fixed[(3 * np.asarray(fixed_nodes)[:, None] + np.arange(3)).ravel()] = True
+        free_dofs = np.flatnonzero(~fixed)
+        reduced[free_dofs] = np.arange(len(free_dofs))
+        dofs = reduced[element_dofs(tets)]
+        rows = np.repeat(dofs, 12, axis=1).ravel()
+        cols = np.tile(dofs, (1, 12)).ravel()
+        keep = (rows >= 0) & (cols >= 0)
+        keys = rows[keep].astype(np.int64) * len(free_dofs) + cols[keep]
+        unique_keys, slot = np.unique(keys, return_inverse=True)
+        unique_rows = unique_keys // len(free_dofs)
+        indptr = np.searchsorted(unique_rows, np.arange(len(free_dofs) + 1))
+        indices = (unique_keys % len(free_dofs)).astype(np.int32)
+        return cls(free_dofs, reduced, slot.ravel(), keep, indices, indptr.astype(np.int32))
+
+    @property
+    def size(self) -> int:
+        return len(self.free_dofs)
+
+    def assemble(self, element_matrices: np.ndarray) -> sp.csr_matrix:
+        """CSR (f, f) from element matrices (m, 12, 12) in element_dofs order."""
+        data = np.bincount(
+            self.slot, weights=element_matrices.reshape(-1)[self.keep], minlength=len(self.indices)
+        )
+        return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.size, self.size))
+
+
+def assemble_vector(element_vectors: np.ndarray, dofs: np.ndarray, size: int) -> np.ndarray:
+    """Sum element vectors (m, 12) at their global dofs (m, 12) into a vector (size,)."""
+    return np.bincount(dofs.ravel(), weights=element_vectors.ravel(), minlength=size)

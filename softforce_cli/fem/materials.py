@@ -1,0 +1,202 @@
+"""Hyperelastic laws: strain energy density, first Piola-Kirchhoff stress and its tangent.
+
+Every function is vectorised over (m, 3, 3) deformation gradients; stresses are in MPa
+(N/mm^2) and tangents are A[m, i, j, k, l] = dP_ij / dF_kl. The three laws agree to first
+order at F = I, so their small-strain responses are identical.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+LAWS = ("linear", "corotational", "neo-hookean")
+
+EYE = np.eye(3)
+# Fourth-order tensors as (9, 9) matrices over (i, j) x (k, l): d_ik d_jl, d_il d_jk, d_ij d_kl.
+IDENTITY9 = np.eye(9)
+TRANSPOSE9 = np.einsum("il,jk->ijkl", EYE, EYE).reshape(9, 9)
+TRACE9 = np.outer(EYE.ravel(), EYE.ravel())
+# Scaled Newton iterations for the polar factor converge quadratically; this many reach
+# round-off for stretches up to 10x (Higham, "Computing the polar decomposition", 1986).
+POLAR_ITERATIONS = 12
+
+# Law = (F, lam, mu, with_tangent) -> (energy density (m,), P (m, 3, 3), A (m, 9, 9) or None)
+Law = Callable[[np.ndarray, float, float, bool], tuple[np.ndarray, np.ndarray, np.ndarray | None]]
+
+
+def lame_parameters(young_modulus_mpa: float, poisson_ratio: float) -> tuple[float, float]:
+    """(lambda, mu) in MPa from Young's modulus (MPa) and Poisson's ratio."""
+    lam = young_modulus_mpa * poisson_ratio / ((1 + poisson_ratio) * (1 - 2 * poisson_ratio))
+    mu = young_modulus_mpa / (2 * (1 + poisson_ratio))
+    return lam, mu
+
+
+@dataclass(frozen=True)
+class Material:
+    """An isotropic hyperelastic material.
+
+    law               : one of LAWS.
+    young_modulus_mpa : Young's modulus E in MPa (0.18 for the Diamond's silicone).
+    poisson_ratio     : nu, in [0, 0.5).
+    """
+
+    law: str
+    young_modulus_mpa: float
+    poisson_ratio: float
+
+    def __post_init__(self) -> None:
+        if self.law not in LAWS:
+            raise ValueError(f"unknown law {self.law!r}; expected one of {', '.join(LAWS)}")
+
+    @property
+    def lame(self) -> tuple[float, float]:
+        return lame_parameters(self.young_modulus_mpa, self.poisson_ratio)
+
+    def energy_and_stress(self, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Energy density (m,) MPa (= mJ/mm^3) and P (m, 3, 3) MPa at F (m, 3, 3)."""
+        energy, stress, _ = _LAWS[self.law](F, *self.lame, False)
+        return energy, stress
+
+    def stress(self, F: np.ndarray) -> np.ndarray:
+        """P (m, 3, 3) MPa at deformation gradients F (m, 3, 3)."""
+        return self.energy_and_stress(F)[1]
+
+    def energy_density(self, F: np.ndarray) -> np.ndarray:
+        """Strain energy per reference volume (m,) in mJ/mm^3 (= MPa)."""
+        return self.energy_and_stress(F)[0]
+
+    def stress_and_tangent(self, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """P (m, 3, 3) MPa and A (m, 3, 3, 3, 3) MPa at deformation gradients F (m, 3, 3)."""
+        _, stress, tangent = _LAWS[self.law](F, *self.lame, True)
+        return stress, tangent.reshape(len(F), 3, 3, 3, 3)
+
+
+def _linear(F, lam, mu, with_tangent):
+    """Small-strain elasticity: psi = lam/2 tr(e)^2 + mu e:e, e = sym(F) - I."""
+    strain = 0.5 * (F + F.transpose(0, 2, 1)) - EYE
+    trace = np.trace(strain, axis1=1, axis2=2)
+    energy = 0.5 * lam * trace**2 + mu * np.einsum("mij,mij->m", strain, strain)
+    stress = lam * trace[:, None, None] * EYE + 2 * mu * strain
+    tangent = None
+    if with_tangent:
+        tangent = np.broadcast_to(lam * TRACE9 + mu * (IDENTITY9 + TRANSPOSE9), (len(F), 9, 9))
+    return energy, stress, tangent
+
+
+def _cofactors(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cofactor matrices (= det X^-T) and determinants of matrices stored as (9, m) rows."""
+    x00, x01, x02, x10, x11, x12, x20, x21, x22 = x
+    c00, c01, c02 = x11 * x22 - x12 * x21, x12 * x20 - x10 * x22, x10 * x21 - x11 * x20
+    cofactors = np.stack([
+        c00, c01, c02,
+        x02 * x21 - x01 * x22, x00 * x22 - x02 * x20, x01 * x20 - x00 * x21,
+        x01 * x12 - x02 * x11, x02 * x10 - x00 * x12, x00 * x11 - x01 * x10,
+    ])
+    return cofactors, x00 * c00 + x01 * c01 + x02 * c02
+
+
+def inverse_transpose(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """F^-T (m, 3, 3) and det F (m,), by cofactors."""
+    cofactors, det = _cofactors(F.reshape(-1, 9).T)
+    return (cofactors / det).T.reshape(-1, 3, 3), det
+
+
+def polar_decomposition(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """F = R S with R a proper rotation and S symmetric, (m, 3, 3) each.
+
+    Scaled Newton iteration X <- (g X + X^-T / g) / 2, g = |det X|^(-1/3), on elements with
+    det F > 0 (components stored as nine contiguous rows, for speed); inverted elements go
+    through the SVD with the smallest singular value negated, so R stays a rotation and the
+    element is pushed back rather than reflected.
+    """
+    upright = np.linalg.det(F) > 0
+    X = np.ascontiguousarray(F[upright].reshape(-1, 9).T)
+    for _ in range(POLAR_ITERATIONS):
+        cofactors, det = _cofactors(X)
+        scale = np.abs(det) ** (-1.0 / 3.0)
+        updated = 0.5 * (scale * X + cofactors / (scale * det))
+        change = np.abs(updated - X).max(initial=0.0)
+        X = updated
+        if change < 1e-14:
+            break
+    R = np.empty_like(F, dtype=float)
+    R[upright] = X.T.reshape(-1, 3, 3)
+    if not upright.all():
+        U, _, Vt = np.linalg.svd(F[~upright])
+        U[:, :, 2] *= np.where(np.linalg.det(U @ Vt) < 0, -1.0, 1.0)[:, None]
+        R[~upright] = U @ Vt
+    S = R.transpose(0, 2, 1) @ F
+    return R, 0.5 * (S + S.transpose(0, 2, 1))
+
+
+# The Levi-Civita symbol eps[i, j, k], and for each (i, k) the j with eps_ijk != 0 and its
+# sign: contracting eps with a matrix's columns is then a signed gather, not a sum.
+LEVI_CIVITA = np.zeros((3, 3, 3))
+LEVI_CIVITA[0, 1, 2] = LEVI_CIVITA[1, 2, 0] = LEVI_CIVITA[2, 0, 1] = 1.0
+LEVI_CIVITA[0, 2, 1] = LEVI_CIVITA[2, 1, 0] = LEVI_CIVITA[1, 0, 2] = -1.0
+_MIDDLE_INDEX = np.abs(LEVI_CIVITA).argmax(axis=1)
+_MIDDLE_SIGN = LEVI_CIVITA.sum(axis=1)
+
+
+def _corotational(F, lam, mu, with_tangent):
+    """Corotational linear elasticity with polar rotations: P = R C:(S - I).
+
+    P is the gradient of psi = mu |S - I|^2 + lam/2 tr(S - I)^2, so the tangent below is the
+    exact, symmetric Hessian (Newton converges quadratically, and the compliance matrices are
+    the true linearisation rather than SOFA's R K0 R^T approximation). The rotation's
+    derivative is dR = R [w]x with (tr S I - S) w = axial(R^T dF - dF^T R), which gives
+    dR_ij/dF_kl = R_ip eps_pjs M^-1_sr eps_rql R_kq, M = tr S I - S.
+    """
+    m = len(F)
+    R, S = polar_decomposition(F)
+    strain = S - EYE
+    trace = np.trace(strain, axis1=1, axis2=2)
+    energy = 0.5 * lam * trace**2 + mu * np.einsum("mij,mij->m", strain, strain)
+    stress = 2 * mu * (F - R) + lam * trace[:, None, None] * R
+    if not with_tangent:
+        return energy, stress, None
+    # M is singular only for degenerate stretches (two singular values summing to zero).
+    coupling = (trace + 3.0)[:, None, None] * EYE - S
+    coupling_inv = inverse_transpose(coupling)[0]  # symmetric, so transpose is harmless
+    left = (R @ LEVI_CIVITA.reshape(3, 9)).reshape(m, 9, 3)  # [(i, j), s]
+    eps_R = (R[:, :, _MIDDLE_INDEX] * _MIDDLE_SIGN).transpose(0, 2, 1, 3)  # eps_rql R_kq
+    right = coupling_inv @ eps_R.reshape(m, 3, 9)
+    rotation_derivative = left @ right  # (m, 9, 9): rows (i, j), columns (k, l)
+    flat_R = R.reshape(m, 9)
+    tangent = (
+        2 * mu * IDENTITY9
+        + (lam * trace - 2 * mu)[:, None, None] * rotation_derivative
+        + lam * flat_R[:, :, None] * flat_R[:, None, :]
+    )
+    return energy, stress, tangent
+
+
+def _neo_hookean(F, lam, mu, with_tangent):
+    """Compressible Neo-Hookean: psi = mu/2 (I1 - 3) - mu ln J + lam/2 (ln J)^2."""
+    m = len(F)
+    F_inv_T, J = inverse_transpose(F)
+    log_J = np.log(np.where(J > 0, J, np.nan))  # NaN marks inversion; the solver backtracks
+    energy = 0.5 * mu * (np.einsum("mij,mij->m", F, F) - 3) - mu * log_J + 0.5 * lam * log_J**2
+    stress = mu * (F - F_inv_T) + (lam * log_J)[:, None, None] * F_inv_T
+    if not with_tangent:
+        return energy, stress, None
+    flat = F_inv_T.reshape(m, 9)
+    # d(F^-T)_ij / dF_kl = -F^-T_il F^-T_kj
+    swapped = (F_inv_T[:, :, None, None, :] * F_inv_T.transpose(0, 2, 1)[:, None, :, :, None])
+    swapped = swapped.reshape(m, 9, 9)
+    tangent = (
+        mu * IDENTITY9
+        + (mu - lam * log_J)[:, None, None] * swapped
+        + lam * flat[:, :, None] * flat[:, None, :]
+    )
+    return energy, stress, tangent
+
+
+_LAWS: dict[str, Law] = {
+    "linear": _linear,
+    "corotational": _corotational,
+    "neo-hookean": _neo_hookean,
+}

@@ -1,0 +1,203 @@
+"""Static equilibrium by Newton's method with a backtracking line search.
+
+Unknowns are the free nodal positions and the tensions of displacement-controlled cables;
+each Newton step solves the cables' constraints in their own small space (the W_aa system of
+the paper's eq. 4), and a cable asked to push goes slack instead (lam >= 0).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from softforce_cli.errors import SolverError
+from softforce_cli.fem.attachment import Attachment
+from softforce_cli.fem.cables import CableInputs
+from softforce_cli.fem.linear_solver import Factorization
+from softforce_cli.fem.model import FEModel
+
+
+@dataclass(frozen=True)
+class PointLoads:
+    """Dead loads at attached points: forces_n (p, 3) N applied at `points`."""
+
+    points: Attachment
+    forces_n: np.ndarray
+
+    def nodal(self, node_count: int) -> np.ndarray:
+        """(n, 3) N: the loads spread on nodes by the barycentric weights."""
+        return self.points.interpolation(node_count).T @ np.asarray(self.forces_n, dtype=float)
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """Convergence thresholds, with why.
+
+    step_tolerance_mm  : a full Newton step this small means the position is known far better
+                         than any camera measures it (D415 noise ~1 mm).
+    force_tolerance_n  : residual force small against the lightest load of interest (10 mN).
+    """
+
+    step_tolerance_mm: float = 1e-7
+    force_tolerance_n: float = 1e-8
+    max_iterations: int = 60
+    max_backtracks: int = 30
+
+
+@dataclass(frozen=True)
+class Equilibrium:
+    """A static equilibrium.
+
+    positions_mm           : (n, 3) deformed node positions in the robot frame.
+    cable_tensions_n       : (a,) cable forces (>= 0 for displacement control).
+    cable_shortenings_mm   : (a,) delta = L0 - L of each cable.
+    reaction_forces_n      : (k, 3) forces the supports exert on the clamped nodes.
+    residual_history_n     : max free-dof force residual before each iteration.
+    """
+
+    positions_mm: np.ndarray
+    cable_tensions_n: np.ndarray
+    cable_shortenings_mm: np.ndarray
+    reaction_forces_n: np.ndarray
+    iterations: int
+    residual_history_n: tuple[float, ...] = field(default=())
+
+
+def external_forces(model: FEModel, loads: PointLoads | None) -> np.ndarray:
+    """(n, 3) N: gravity plus dead point loads."""
+    forces = model.gravity_forces_n.copy()
+    if loads is not None:
+        forces += loads.nodal(model.node_count)
+    return forces
+
+
+def solve_equilibrium(
+    model: FEModel,
+    inputs: CableInputs,
+    loads: PointLoads | None = None,
+    start_mm: np.ndarray | None = None,
+    settings: SolverSettings = SolverSettings(),
+) -> Equilibrium:
+    """Deformed configuration where elastic, applied and cable forces balance.
+
+    Raises SolverError when Newton's method does not converge in settings.max_iterations.
+    """
+    if len(inputs.values) != len(model.cables):
+        raise SolverError(
+            f"{len(inputs.values)} actuation values given for {len(model.cables)} cables"
+        )
+    positions = model.rest_nodes_mm.copy() if start_mm is None else np.array(start_mm, float)
+    free = model.free_dofs
+    applied = external_forces(model, loads).ravel()
+    controlled = inputs.displacement_controlled
+    tensions = np.where(controlled, 0.0, inputs.values)
+    def residual_at(x: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        internal_x = model.internal_forces(x).ravel()
+        return (applied - internal_x)[free] + model.cable_jacobian(x)[:, free].T @ lam
+
+    stiffness_scale = None
+    factor = None
+    history: list[float] = []
+    for _ in range(settings.max_iterations):
+        internal, stiffness = model.internal_forces_and_stiffness(positions)
+        jacobian = model.cable_jacobian(positions)[:, free]
+        tangent = stiffness + model.cable_stiffness(positions, tensions)
+        if stiffness_scale is None:
+            stiffness_scale = float(np.mean(tangent.diagonal()))
+        residual = (applied - internal.ravel())[free] + jacobian.T @ tensions
+        violation = (inputs.values - model.cable_shortenings(positions))[controlled]
+        history.append(float(np.abs(residual).max(initial=0.0)))
+        if history[-1] <= settings.force_tolerance_n and np.all(np.abs(violation) < 1e-9):
+            break
+        factor = Factorization(tangent) if factor is None else factor.refactor(tangent)
+        base = (applied - internal.ravel())[free] + jacobian[~controlled].T @ tensions[~controlled]
+        step = factor.solve(base)
+        if controlled.any():
+            tensions, step = _cable_tensions(
+                factor, jacobian, controlled, violation, step, tensions
+            )
+        positions, full_step = _line_search(
+            model, positions, step, residual_at(positions, tensions), tensions, applied,
+            inputs, controlled, stiffness_scale, settings,
+        )
+        if full_step and np.abs(step).max() <= settings.step_tolerance_mm:
+            break
+    else:
+        raise SolverError(
+            f"static solve did not converge in {settings.max_iterations} Newton iterations "
+            f"(force residual {history[-1]:.3g} N); reduce the load or refine the mesh"
+        )
+    internal = model.internal_forces(positions)
+    total = applied.reshape(-1, 3) - internal + (
+        model.cable_jacobian(positions).T @ tensions
+    ).reshape(-1, 3)
+    return Equilibrium(
+        positions_mm=positions,
+        cable_tensions_n=tensions,
+        cable_shortenings_mm=model.cable_shortenings(positions),
+        reaction_forces_n=-total[model.fixed_nodes],
+        iterations=len(history),
+        residual_history_n=tuple(history),
+    )
+
+
+def _cable_tensions(factor, jacobian, controlled, violation, free_step, tensions):
+    """Tensions of displacement-controlled cables for this Newton step, slack where negative.
+
+    Solves W lam = violation - H dx_free on the taut set (an active set on at most a few
+    cables); returns the tensions and the full step dx_free + K^-1 H^T lam.
+    """
+    rows = jacobian[controlled]
+    responses = factor.solve(rows.T)  # (f, d): K^-1 H_d^T
+    compliance = rows @ responses  # W_aa of eq. 4
+    target = violation - rows @ free_step
+    taut = np.ones(len(target), dtype=bool)
+    for _ in range(2 ** len(target)):
+        lam = np.zeros(len(target))
+        if taut.any():
+            lam[taut] = np.linalg.solve(compliance[np.ix_(taut, taut)], target[taut])
+        predicted_gap = compliance @ lam - target  # > 0: cable would be shorter than asked
+        negative = lam < -1e-12
+        stretched = ~taut & (predicted_gap < -1e-12)
+        if not negative.any() and not stretched.any():
+            break
+        taut = (taut & ~negative) | stretched
+    tensions = tensions.copy()
+    tensions[controlled] = lam
+    return tensions, free_step + responses @ lam
+
+
+def _line_search(model, positions, step, residual, tensions, applied, inputs, controlled,
+                 scale, settings):
+    """Backtrack along `step` until it decreases enough either the potential energy (with the
+    cable tensions held) or the residual merit |r|^2 + (k |c|)^2 (Armijo, factor 1e-4).
+
+    The energy test accepts the first Newton step from rest, where rotations briefly raise the
+    residual; the residual test takes over near convergence, where energy changes drown in
+    round-off. Returns the new positions and whether the full step was taken.
+    """
+    free = model.free_dofs
+
+    def evaluate(trial: np.ndarray) -> tuple[float, float]:
+        energy, internal = model.energy_and_forces(trial)
+        r = (applied - internal.ravel())[free] + model.cable_jacobian(trial)[:, free].T @ tensions
+        shortenings = model.cable_shortenings(trial)
+        c = (inputs.values - shortenings)[controlled]
+        potential = energy - applied @ trial.ravel() - tensions @ shortenings
+        merit = float(r @ r + scale**2 * c @ c)
+        return (potential if np.isfinite(potential) else np.inf,
+                merit if np.isfinite(merit) else np.inf)
+
+    potential0, merit0 = evaluate(positions)
+    slope = -float(residual @ step)  # d(potential)/d(alpha) at alpha = 0
+    alpha = 1.0
+    for _ in range(settings.max_backtracks):
+        trial = positions.copy()
+        trial.reshape(-1)[free] += alpha * step
+        potential, merit = evaluate(trial)
+        energy_ok = slope < 0 and potential <= potential0 + 1e-4 * alpha * slope
+        if energy_ok or merit <= (1.0 - 1e-4 * alpha) * merit0 or merit0 == 0.0:
+            return trial, alpha == 1.0
+        alpha *= 0.5
+    return trial, False

@@ -1,0 +1,1 @@
+"""Input/output: MCAP recordings, atomic file writes."""

@@ -1,0 +1,1 @@
+"""Robot model: mesh, material, boundary conditions, cables, features and markers."""

@@ -1,0 +1,252 @@
+"""The robot model file (DESIGN.md section 4): TOML parsed into validated, frozen data.
+
+Every check raises ModelError with one line naming the file, the key and the fix.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import tomllib
+
+from softforce_cli.errors import ModelError
+from softforce_cli.fem.cables import CONTROLS
+from softforce_cli.fem.materials import LAWS
+
+_KEYS = {
+    "top": {"name", "mesh", "material", "fixed", "cable", "features", "marker"},
+    "mesh": {"path", "scale", "rotation_deg", "translation_mm"},
+    "material": {"law", "young_modulus_mpa", "poisson_ratio", "total_mass_kg", "density_kg_m3",
+                 "gravity_mm_s2"},
+    "fixed": {"box_mm"},
+    "cable": {"name", "path_mm", "pull_point_mm", "control", "min", "max"},
+    "features": {"count", "points_mm"},
+    "marker": {"id", "position_mm"},
+}
+
+
+@dataclass(frozen=True)
+class MeshSpec:
+    path: Path
+    scale: float = 1.0
+    rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    translation_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class MaterialSpec:
+    law: str
+    young_modulus_mpa: float
+    poisson_ratio: float
+    total_mass_kg: float | None
+    density_kg_m3: float | None
+    gravity_mm_s2: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class CableSpec:
+    name: str
+    path_mm: tuple[tuple[float, float, float], ...]
+    pull_point_mm: tuple[float, float, float]
+    control: str
+    min: float
+    max: float
+
+
+@dataclass(frozen=True)
+class MarkerSpec:
+    id: str
+    position_mm: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    """The robot file's content, validated for form and units (not yet against the mesh)."""
+
+    source: Path
+    name: str
+    mesh: MeshSpec
+    material: MaterialSpec
+    fixed_boxes_mm: tuple[tuple[float, ...], ...]
+    cables: tuple[CableSpec, ...]
+    feature_count: int | None
+    feature_points_mm: tuple[tuple[float, float, float], ...] | None
+    markers: tuple[MarkerSpec, ...]
+
+
+def load_config(path: Path) -> RobotConfig:
+    """Read and validate a robot TOML file."""
+    path = Path(path)
+    if not path.is_file():
+        raise ModelError(f"robot file {path} not found; create one with `softforce model init`")
+    try:
+        data = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
+        raise ModelError(f"{path}: not valid TOML ({error})") from error
+    return parse_config(data, path)
+
+
+def parse_config(data: dict[str, Any], source: Path) -> RobotConfig:
+    where = _Where(source)
+    where.keys(data, "top", "")
+    for section in ("mesh", "material"):
+        if section not in data:
+            raise ModelError(f"{source}: missing [{section}] section (see DESIGN.md section 4)")
+    mesh = data["mesh"]
+    where.keys(mesh, "mesh", "mesh")
+    if "path" not in mesh:
+        raise ModelError(f"{source}: [mesh] needs `path`, the tetrahedral mesh file")
+    mesh_spec = MeshSpec(
+        path=(source.parent / mesh["path"]).resolve(),
+        scale=where.positive(mesh.get("scale", 1.0), "mesh.scale"),
+        rotation_deg=where.vector(mesh.get("rotation_deg", [0, 0, 0]), "mesh.rotation_deg"),
+        translation_mm=where.vector(mesh.get("translation_mm", [0, 0, 0]),
+                                    "mesh.translation_mm"),
+    )
+    fixed = data.get("fixed", [])
+    boxes = []
+    for i, box in enumerate(fixed):
+        where.keys(box, "fixed", f"fixed[{i}]")
+        values = where.numbers(box.get("box_mm"), 6, f"fixed[{i}].box_mm")
+        if any(values[k] >= values[k + 3] for k in range(3)):
+            raise ModelError(f"{source}: fixed[{i}].box_mm must be [xmin ymin zmin xmax ymax zmax]"
+                             " with each min below its max")
+        boxes.append(values)
+    if not boxes:
+        raise ModelError(f"{source}: no [[fixed]] box; a robot must be clamped somewhere")
+    features = data.get("features", {"count": 51})
+    where.keys(features, "features", "features")
+    if ("count" in features) == ("points_mm" in features):
+        raise ModelError(f"{source}: [features] needs exactly one of `count` or `points_mm`")
+    count = features.get("count")
+    if count is not None and (not isinstance(count, int) or count < 1):
+        raise ModelError(f"{source}: features.count must be a positive integer, got {count!r}")
+    points = features.get("points_mm")
+    return RobotConfig(
+        source=source,
+        name=str(data.get("name", source.stem)),
+        mesh=mesh_spec,
+        material=_material(data["material"], where),
+        fixed_boxes_mm=tuple(boxes),
+        cables=_cables(data.get("cable", []), where),
+        feature_count=count,
+        feature_points_mm=None if points is None else tuple(
+            where.vector(p, f"features.points_mm[{i}]") for i, p in enumerate(points)),
+        markers=_markers(data.get("marker", []), where),
+    )
+
+
+def _material(material: dict[str, Any], where: _Where) -> MaterialSpec:
+    source = where.source
+    where.keys(material, "material", "material")
+    law = material.get("law", "corotational")
+    if law not in LAWS:
+        raise ModelError(f"{source}: material.law {law!r} unknown; use one of {', '.join(LAWS)}")
+    young = where.positive(material.get("young_modulus_mpa"), "material.young_modulus_mpa")
+    if young > 1e4:
+        raise ModelError(f"{source}: material.young_modulus_mpa = {young:g} looks like Pa or kPa;"
+                         " softforce uses MPa (180 kPa silicone is 0.18)")
+    nu = where.number(material.get("poisson_ratio"), "material.poisson_ratio")
+    if not 0.0 <= nu < 0.5:
+        raise ModelError(f"{source}: material.poisson_ratio = {nu:g} must be in [0, 0.5)")
+    mass = material.get("total_mass_kg")
+    density = material.get("density_kg_m3")
+    if (mass is None) == (density is None):
+        raise ModelError(f"{source}: [material] needs exactly one of total_mass_kg or "
+                         "density_kg_m3")
+    if density is not None and where.positive(density, "material.density_kg_m3") < 50:
+        raise ModelError(f"{source}: material.density_kg_m3 = {density:g} looks like g/cm^3;"
+                         " silicone is about 1070 kg/m^3")
+    if mass is not None:
+        where.positive(mass, "material.total_mass_kg")
+    gravity = where.vector(material.get("gravity_mm_s2", [0, 0, 0]), "material.gravity_mm_s2")
+    if 1.0 < math.hypot(*gravity) < 100.0:
+        raise ModelError(f"{source}: material.gravity_mm_s2 = {list(gravity)} looks like m/s^2;"
+                         " softforce uses mm/s^2 (9810)")
+    return MaterialSpec(law, young, nu, mass, density, gravity)
+
+
+def _cables(cables: list[dict[str, Any]], where: _Where) -> tuple[CableSpec, ...]:
+    specs = []
+    for i, cable in enumerate(cables):
+        where.keys(cable, "cable", f"cable[{i}]")
+        name = str(cable.get("name", f"cable{i}"))
+        control = cable.get("control", "displacement")
+        if control not in CONTROLS:
+            raise ModelError(f"{where.source}: cable {name!r} control {control!r} unknown; use "
+                             f"{' or '.join(CONTROLS)}")
+        path = cable.get("path_mm")
+        if not isinstance(path, list) or not path:
+            raise ModelError(f"{where.source}: cable {name!r} needs path_mm, a list of points")
+        low = where.number(cable.get("min", 0.0), f"cable {name!r} min")
+        high = where.number(cable.get("max", math.inf), f"cable {name!r} max")
+        if low > high:
+            raise ModelError(f"{where.source}: cable {name!r} has min {low:g} > max {high:g}")
+        specs.append(CableSpec(
+            name=name,
+            path_mm=tuple(where.vector(p, f"cable {name!r} path_mm") for p in path),
+            pull_point_mm=where.vector(cable.get("pull_point_mm"), f"cable {name!r} pull_point_mm"),
+            control=control, min=low, max=high,
+        ))
+    _unique([c.name for c in specs], "cable name", where.source)
+    return tuple(specs)
+
+
+def _markers(markers: list[dict[str, Any]], where: _Where) -> tuple[MarkerSpec, ...]:
+    specs = []
+    for i, marker in enumerate(markers):
+        where.keys(marker, "marker", f"marker[{i}]")
+        if "id" not in marker:
+            raise ModelError(f"{where.source}: marker[{i}] needs an `id`")
+        specs.append(MarkerSpec(str(marker["id"]),
+                                where.vector(marker.get("position_mm"), f"marker[{i}].position_mm")))
+    _unique([m.id for m in specs], "marker id", where.source)
+    return tuple(specs)
+
+
+def _unique(names: list[str], what: str, source: Path) -> None:
+    seen = set()
+    for name in names:
+        if name in seen:
+            raise ModelError(f"{source}: {what} {name!r} appears twice")
+        seen.add(name)
+
+
+@dataclass(frozen=True)
+class _Where:
+    """Validators that name the file and key in their error."""
+
+    source: Path
+
+    def keys(self, table: Any, kind: str, label: str) -> None:
+        if not isinstance(table, dict):
+            raise ModelError(f"{self.source}: [{label}] must be a table")
+        unknown = sorted(set(table) - _KEYS[kind])
+        if unknown:
+            place = f"[{label}]" if label else "top level"
+            raise ModelError(f"{self.source}: unknown key {unknown[0]!r} in {place}; expected "
+                             f"one of {', '.join(sorted(_KEYS[kind]))}")
+
+    def number(self, value: Any, key: str) -> float:
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(
+                value):
+            raise ModelError(f"{self.source}: {key} must be a finite number, got {value!r}")
+        return float(value)
+
+    def positive(self, value: Any, key: str) -> float:
+        number = self.number(value, key)
+        if number <= 0:
+            raise ModelError(f"{self.source}: {key} must be positive, got {number:g}")
+        return number
+
+    def numbers(self, value: Any, count: int, key: str) -> tuple[float, ...]:
+        if not isinstance(value, list) or len(value) != count:
+            raise ModelError(f"{self.source}: {key} must be a list of {count} numbers, got "
+                             f"{value!r}")
+        return tuple(self.number(v, key) for v in value)
+
+    def vector(self, value: Any, key: str) -> tuple[float, float, float]:
+        return self.numbers(value, 3, key)  # type: ignore[return-value]

@@ -1,0 +1,179 @@
+"""A robot: its mesh in the robot frame with supports, cables, feature points and markers.
+
+`load_robot` reads a robot TOML and checks it against its mesh; `Robot.fe_model` is the
+finite element model the estimators use.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from softforce_cli.errors import ModelError
+from softforce_cli.fem.attachment import Attachment, attach_points
+from softforce_cli.fem.cables import Cable, CableInputs
+from softforce_cli.fem.materials import Material
+from softforce_cli.fem.model import FEModel, lumped_masses
+from softforce_cli.model.config import CableSpec, RobotConfig, load_config
+from softforce_cli.model.features import nearest_surface_nodes, spread_surface_nodes
+from softforce_cli.model.mesh import TetMesh
+from softforce_cli.model.mesh_io import read_tet_mesh
+
+# A cable point or marker may sit this far outside the mesh (surface faceting, a marker glued
+# on the skin) before the file is considered wrong.
+OUTSIDE_TOLERANCE_MM = 2.0
+# kg/m^3 -> kg/mm^3.
+KG_M3_TO_KG_MM3 = 1e-9
+
+
+@dataclass(frozen=True)
+class Robot:
+    """Everything softforce knows about a robot, in the robot frame (mm).
+
+    fixed_nodes    : (k,) clamped nodes (inside a [[fixed]] box, or used by no element).
+    feature_nodes  : (p,) surface nodes used as effectors (feature points).
+    marker_ids     : marker names, in file order; marker_points attaches them to the mesh.
+    """
+
+    config: RobotConfig
+    mesh: TetMesh
+    fixed_nodes: np.ndarray
+    feature_nodes: np.ndarray
+    marker_ids: tuple[str, ...]
+    marker_points: Attachment
+
+    @property
+    def name(self) -> str:
+        return self.config.name
+
+    @property
+    def cable_specs(self) -> tuple[CableSpec, ...]:
+        return self.config.cables
+
+    @cached_property
+    def material(self) -> Material:
+        spec = self.config.material
+        return Material(spec.law, spec.young_modulus_mpa, spec.poisson_ratio)
+
+    @cached_property
+    def density_kg_mm3(self) -> float:
+        spec = self.config.material
+        if spec.density_kg_m3 is not None:
+            return spec.density_kg_m3 * KG_M3_TO_KG_MM3
+        return spec.total_mass_kg / self.mesh.volume_mm3
+
+    @property
+    def mass_kg(self) -> float:
+        return self.density_kg_mm3 * self.mesh.volume_mm3
+
+    @cached_property
+    def cables(self) -> tuple[Cable, ...]:
+        nodes = self.mesh.nodes_mm
+        return tuple(
+            Cable.through(spec.name, attach_points(nodes, self.mesh.tets, spec.path_mm),
+                          spec.pull_point_mm, nodes)
+            for spec in self.cable_specs
+        )
+
+    @cached_property
+    def fe_model(self) -> FEModel:
+        nodes = self.mesh.nodes_mm
+        return FEModel(
+            rest_nodes_mm=nodes,
+            tets=self.mesh.tets,
+            material=self.material,
+            fixed_nodes=self.fixed_nodes,
+            node_masses_kg=lumped_masses(nodes, self.mesh.tets, self.density_kg_mm3),
+            gravity_mm_s2=np.asarray(self.config.material.gravity_mm_s2, dtype=float),
+            cables=self.cables,
+        )
+
+    @cached_property
+    def feature_normals(self) -> np.ndarray:
+        """(p, 3) outward unit normals at the feature points, rest shape."""
+        return self.mesh.vertex_normals[self.feature_nodes]
+
+    @property
+    def marker_positions_mm(self) -> np.ndarray:
+        """(k, 3) marker positions on the rest shape."""
+        return self.marker_points.positions(self.mesh.nodes_mm)
+
+    def cable_inputs(self, values: np.ndarray) -> CableInputs:
+        """Actuation values (a,) with each cable's control mode from the robot file."""
+        values = np.asarray(values, dtype=float)
+        if values.shape != (len(self.cable_specs),):
+            raise ModelError(f"{len(values)} actuation values for {len(self.cable_specs)} cables "
+                             f"({', '.join(c.name for c in self.cable_specs)})")
+        return CableInputs(tuple(c.control for c in self.cable_specs), values)
+
+
+def load_robot(path: Path) -> Robot:
+    """Read a robot TOML and its mesh; check the model against the mesh."""
+    config = load_config(path)
+    spec = config.mesh
+    mesh = read_tet_mesh(spec.path, spec.scale, spec.rotation_deg, spec.translation_mm)
+    return build_robot(config, mesh)
+
+
+def build_robot(config: RobotConfig, mesh: TetMesh) -> Robot:
+    source = config.source
+    nodes = mesh.nodes_mm
+    fixed = []
+    for i, box in enumerate(config.fixed_boxes_mm):
+        inside = np.all((nodes >= box[:3]) & (nodes <= box[3:]), axis=1)
+        if not inside.any():
+            raise ModelError(f"{source}: fixed[{i}] box {list(box)} catches no node; the mesh "
+                             f"spans {np.round(mesh.bounds_mm, 1).tolist()} mm")
+        fixed.append(np.flatnonzero(inside))
+    unused = np.setdiff1d(np.arange(mesh.node_count), mesh.tets)
+    fixed_nodes = np.unique(np.concatenate([*fixed, unused]))
+    for cable in config.cables:
+        _check_inside(mesh, np.array(cable.path_mm), f"cable {cable.name!r} path point", source)
+    if config.feature_points_mm is not None:
+        features, _ = nearest_surface_nodes(nodes, mesh.surface_nodes,
+                                            np.array(config.feature_points_mm))
+        features = np.unique(features)
+    else:
+        features = spread_surface_nodes(nodes, mesh.surface_nodes, fixed_nodes,
+                                        config.feature_count)
+    marker_positions = np.array([m.position_mm for m in config.markers]).reshape(-1, 3)
+    _check_inside(mesh, marker_positions, "marker", source,
+                  names=[m.id for m in config.markers])
+    return Robot(
+        config=config,
+        mesh=mesh,
+        fixed_nodes=fixed_nodes,
+        feature_nodes=features,
+        marker_ids=tuple(m.id for m in config.markers),
+        marker_points=attach_points(nodes, mesh.tets, marker_positions),
+    )
+
+
+def distance_outside_mm(mesh: TetMesh, points_mm: np.ndarray) -> np.ndarray:
+    """(p,) how far each point lies outside the mesh (0 inside), to within a tet's size.
+
+    Measured to the nearest point of its attachment tetrahedron's clamped barycentric image,
+    which bounds the true distance from above.
+    """
+    attachment = attach_points(mesh.nodes_mm, mesh.tets, points_mm)
+    clamped = np.clip(attachment.weights, 0.0, None)
+    clamped /= clamped.sum(axis=1, keepdims=True)
+    nearest = np.einsum("pa,pai->pi", clamped, mesh.nodes_mm[attachment.node_indices])
+    return np.where(attachment.inside, 0.0, np.linalg.norm(points_mm - nearest, axis=1))
+
+
+def _check_inside(mesh: TetMesh, points: np.ndarray, what: str, source: Path,
+                  names: list[str] | None = None) -> None:
+    if not len(points):
+        return
+    outside = distance_outside_mm(mesh, points)
+    worst = int(np.argmax(outside))
+    if outside[worst] > OUTSIDE_TOLERANCE_MM:
+        label = f"{what} {names[worst]!r}" if names else what
+        raise ModelError(f"{source}: {label} at {list(np.round(points[worst], 2))} mm is "
+                         f"{outside[worst]:.1f} mm outside the mesh (tolerance "
+                         f"{OUTSIDE_TOLERANCE_MM} mm); check its coordinates and the mesh "
+                         "placement")

@@ -1,0 +1,1 @@
+"""Synthetic recordings: scenarios, ground truth, the virtual RGB-D camera."""
