@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 from pathlib import Path
 
 import meshio
@@ -42,9 +44,13 @@ def read_tet_mesh(path: Path, scale: float = 1.0,
     if not path.is_file():
         raise ModelError(f"mesh file {path} not found (mesh.path is relative to the robot file)")
     try:
-        mesh = meshio.read(path)
-    except Exception as error:  # meshio raises many types for unreadable files
-        raise ModelError(f"cannot read mesh {path}: {error}".splitlines()[0]) from error
+        # meshio prints its own complaint and may even sys.exit() on an unreadable file
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            mesh = meshio.read(path)
+    except (Exception, SystemExit) as error:
+        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise ModelError(f"cannot read mesh {path} ({reason}); is it a tetrahedral mesh in a "
+                         "format meshio knows (.vtu, .vtk, .msh, .mesh...)?") from None
     blocks = [block.data for block in mesh.cells if block.type == "tetra"]
     if not blocks:
         kinds = ", ".join(sorted({block.type for block in mesh.cells})) or "none"

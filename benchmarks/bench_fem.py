@@ -1,0 +1,69 @@
+"""FE engine speed on the coarse default robot (issue: foundation).
+
+One "update" is what a sensing frame costs: corotational K(x) at the current configuration,
+its factorisation, and the compliance matrices for 51 normal effectors, 4 cables and 2 force
+points, with the free displacements (paper eq. 3-6).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.timing import BenchRow, median_time, peak_memory_mb
+from softforce_cli.fem.attachment import Attachment
+from softforce_cli.fem.compliance import compliance, effector_rows, force_rows, linearize
+from softforce_cli.fem.statics import solve_equilibrium
+from softforce_cli.model.robot import load_robot
+
+ROOT = Path(__file__).resolve().parents[1]
+COARSE = ROOT / "sample_data" / "diamond" / "diamond.toml"
+FINE = ROOT / "sample_data" / "diamond_fine" / "diamond.toml"
+ACTUATION = np.array([5.0, 5.0, 0.0, 0.0])
+
+
+def run() -> list[BenchRow]:
+    robot = load_robot(COARSE)
+    model = robot.fe_model
+    equilibrium = solve_equilibrium(model, robot.cable_inputs(ACTUATION))
+    features = Attachment.at_nodes(robot.feature_nodes)
+    effectors = effector_rows(features, model.node_count, robot.feature_normals)
+    contacts = np.array([0, len(robot.feature_nodes) // 2])
+    forces = force_rows(features.subset(contacts), robot.feature_normals[contacts],
+                        model.node_count)
+    state = {"lin": linearize(model, equilibrium.positions_mm, equilibrium.cable_tensions_n)}
+
+    def update() -> None:
+        state["lin"] = linearize(model, equilibrium.positions_mm, equilibrium.cable_tensions_n,
+                                 factorization=state["lin"].factorization)
+        compliance(state["lin"], effectors, forces)
+
+    def assemble() -> None:
+        model.internal_forces_and_stiffness(equilibrium.positions_mm)
+
+    update_s = median_time(update, repeats=40, warmup=3)
+    assemble_s = median_time(assemble, repeats=40)
+    update_mb = peak_memory_mb(update)
+    sizes = f"{robot.mesh.tet_count} tets, {len(model.free_dofs)} dofs"
+    rows = [
+        BenchRow("FE update (K, factorise, W for 51 normals + 4 cables + 2 forces)", update_s,
+                 40, ">= 50 Hz", f"{1 / update_s:.0f} Hz",
+                 f"{sizes}; peak {update_mb:.0f} MB; paper: 7 Hz (51 features, 4884 tets)"),
+        BenchRow("  of which corotational forces + tangent assembly", assemble_s, 40, "",
+                 f"{assemble_s * 1e3:.1f} ms", "vectorised over elements, one bincount"),
+    ]
+    inputs = robot.cable_inputs(ACTUATION)
+    solve_s = median_time(lambda: solve_equilibrium(model, inputs), repeats=5)
+    solve_mb = peak_memory_mb(lambda: solve_equilibrium(model, inputs))
+    rows.append(BenchRow("Nonlinear static solve from rest, cables 5,5,0,0 mm + gravity",
+                         solve_s, 5, "< 0.5 s", f"{solve_s:.2f} s",
+                         f"{sizes}; {equilibrium.iterations} Newton iterations; "
+                         f"peak {solve_mb:.0f} MB"))
+    fine = load_robot(FINE)
+    fine_inputs = fine.cable_inputs(ACTUATION)
+    fine_s = median_time(lambda: solve_equilibrium(fine.fe_model, fine_inputs), repeats=3,
+                         warmup=0)
+    rows.append(BenchRow("Nonlinear static solve, fine mesh (ground truth)", fine_s, 3, "",
+                         f"{fine_s:.2f} s", f"{fine.mesh.tet_count} tets"))
+    return rows
