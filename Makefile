@@ -27,6 +27,7 @@ lint: setup
 	$(BIN)/ruff check softforce_cli tests scripts benchmarks
 
 bench: setup
+	$(BIN)/pytest -q -s -m bench -o addopts="-p no:dash"
 	$(BIN)/python benchmarks/run.py --output docs/benchmarks.md
 
 clean:

@@ -108,7 +108,10 @@ def solve_equilibrium(
         residual = (applied - internal.ravel())[free] + jacobian.T @ tensions
         violation = (inputs.values - model.cable_shortenings(positions))[controlled]
         history.append(float(np.abs(residual).max(initial=0.0)))
-        if history[-1] <= settings.force_tolerance_n and np.all(np.abs(violation) < 1e-9):
+        # a slack cable (no tension) may be shorter than asked, never longer
+        slack = tensions[controlled] <= 0.0
+        gap = np.where(slack, violation, np.abs(violation))
+        if history[-1] <= settings.force_tolerance_n and np.all(gap < 1e-9):
             break
         factor = Factorization(tangent) if factor is None else factor.refactor(tangent)
         base = (applied - internal.ravel())[free] + jacobian[~controlled].T @ tensions[~controlled]
@@ -184,6 +187,7 @@ def _line_search(model, positions, step, residual, tensions, applied, inputs, co
         r = (applied - internal.ravel())[free] + model.cable_jacobian(trial)[:, free].T @ tensions
         shortenings = model.cable_shortenings(trial)
         c = (inputs.values - shortenings)[controlled]
+        c = np.where(tensions[controlled] > 0.0, c, np.maximum(c, 0.0))  # slack: one-sided
         potential = energy - applied @ trial.ravel() - tensions @ shortenings
         merit = float(r @ r + scale**2 * c @ c)
         return (potential if np.isfinite(potential) else np.inf,
