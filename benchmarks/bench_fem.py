@@ -1,4 +1,4 @@
-"""FE engine speed on the coarse default robot (issue: foundation).
+"""FE engine speed on the coarse default robot (issues: foundation; 5, quadratic elements).
 
 One "update" is what a sensing frame costs: corotational K(x) at the current configuration,
 its factorisation, and the compliance matrices for 51 normal effectors, 4 cables and 2 force
@@ -7,6 +7,7 @@ points, with the free displacements (paper eq. 3-6).
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -15,12 +16,64 @@ from benchmarks.timing import BenchRow, median_time, peak_memory_mb
 from softforce_cli.fem.attachment import Attachment
 from softforce_cli.fem.compliance import compliance, effector_rows, force_rows, linearize
 from softforce_cli.fem.statics import solve_equilibrium
-from softforce_cli.model.robot import load_robot
+from softforce_cli.model.config import load_config
+from softforce_cli.model.mesh_io import read_tet_mesh
+from softforce_cli.model.robot import Robot, build_robot, load_robot
 
 ROOT = Path(__file__).resolve().parents[1]
 COARSE = ROOT / "sample_data" / "diamond" / "diamond.toml"
 FINE = ROOT / "sample_data" / "diamond_fine" / "diamond.toml"
 ACTUATION = np.array([5.0, 5.0, 0.0, 0.0])
+
+
+def robot_with_element(path: Path, element: str) -> Robot:
+    """The robot of a file with its `[mesh] element` replaced."""
+    config = load_config(path)
+    config = dataclasses.replace(config, mesh=dataclasses.replace(config.mesh, element=element))
+    spec = config.mesh
+    return build_robot(config, read_tet_mesh(spec.path, spec.scale, spec.rotation_deg,
+                                              spec.translation_mm))
+
+
+def update_timing(element: str, repeats: int, robot: Robot | None = None
+                  ) -> tuple[float, float, float, Robot]:
+    """Median seconds of one update, of its K assembly and of its factorisation, on the
+    coarse default robot with `element` (or on `robot`), at the equilibrium for ACTUATION."""
+    robot = robot_with_element(COARSE, element) if robot is None else robot
+    model = robot.fe_model
+    equilibrium = solve_equilibrium(model, robot.cable_inputs(ACTUATION))
+    features = Attachment.at_nodes(robot.feature_nodes)
+    effectors = effector_rows(features, model.node_count, robot.feature_normals)
+    contacts = np.array([0, len(robot.feature_nodes) // 2])
+    forces = force_rows(features.subset(contacts), robot.feature_normals[contacts],
+                        model.node_count)
+    x, tensions = equilibrium.positions_mm, equilibrium.cable_tensions_n
+    state = {"lin": linearize(model, x, tensions)}
+
+    def update() -> None:
+        state["lin"] = linearize(model, x, tensions, factorization=state["lin"].factorization)
+        compliance(state["lin"], effectors, forces)
+
+    _, stiffness = model.internal_forces_and_stiffness(x)
+    factor = state["lin"].factorization
+    return (median_time(update, repeats=repeats, warmup=1),
+            median_time(lambda: model.internal_forces_and_stiffness(x), repeats=repeats),
+            median_time(lambda: factor.refactor(stiffness), repeats=repeats), robot)
+
+
+def element_rows(elements: tuple[str, ...] = ("p2", "p2-p0"), repeats: int = 5
+                 ) -> list[BenchRow]:
+    """The update of `run` with quadratic elements on the same coarse mesh."""
+    rows = []
+    for element in elements:
+        update_s, assemble_s, factor_s, robot = update_timing(element, repeats)
+        dofs = len(robot.fe_model.free_dofs)
+        rows.append(BenchRow(
+            f"FE update, element = {element!r} (same mesh, 51 normals + 4 cables + 2 forces)",
+            update_s, repeats, ">= 50 Hz (p1 default)", f"{1 / update_s:.1f} Hz",
+            f"{robot.mesh.tet_count} tets, {dofs} dofs; K {assemble_s * 1e3:.0f} ms, "
+            f"LDL^T {factor_s * 1e3:.0f} ms (qdldl)"))
+    return rows
 
 
 def run() -> list[BenchRow]:
@@ -66,4 +119,4 @@ def run() -> list[BenchRow]:
                          warmup=0)
     rows.append(BenchRow("Nonlinear static solve, fine mesh (ground truth)", fine_s, 3, "",
                          f"{fine_s:.2f} s", f"{fine.mesh.tet_count} tets"))
-    return rows
+    return rows + element_rows()

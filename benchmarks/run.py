@@ -12,11 +12,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.timing import BenchRow  # noqa: E402
-from softforce_cli.fem.allocator import keep_freed_memory  # noqa: E402
+from benchmarks.timing import BenchRow
+from softforce_cli.fem.allocator import keep_freed_memory
 
 # Each module exposes run() -> list[BenchRow].
-MODULES = ["benchmarks.bench_fem"]
+MODULES = ["benchmarks.bench_fem", "benchmarks.bench_calibration", "benchmarks.bench_recording"]
 
 
 def machine() -> str:
@@ -46,7 +46,7 @@ def render(rows: list[BenchRow]) -> str:
         "Figures are medians of repeated runs on a shared, noisy 2-core machine: compare",
         "ratios, not the last digit.",
         "",
-        f"- date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC",
+        f"- date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC",
         f"- machine: {machine()}",
         "- command: `make bench`",
         "",

@@ -2,19 +2,20 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
+from collections.abc import Callable, Iterator
 from typing import Annotated, Any
 
 import typer
 from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 stderr = Console(stderr=True, highlight=False)
 stdout = Console(highlight=False)
 
-ForceOption = Annotated[
-    bool, typer.Option("--force", help="Overwrite existing output files.")
-]
+ForceOption = Annotated[bool, typer.Option("--force", help="Overwrite existing output files.")]
 JsonOption = Annotated[
     bool, typer.Option("--json", help="Print one JSON document on standard output, nothing else.")
 ]
@@ -23,3 +24,16 @@ JsonOption = Annotated[
 def print_json(document: Any) -> None:
     """The whole of standard output for --json."""
     sys.stdout.write(json.dumps(document, indent=2) + "\n")
+
+
+@contextlib.contextmanager
+def progress_bar(label: str) -> Iterator[Callable[[int, int], None]]:
+    """A rich progress bar on stderr; yields the (done, total) callback library code takes."""
+    columns = (TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=stderr) as progress:
+        task = progress.add_task(label, total=None)
+
+        def advance(done: int, total: int) -> None:
+            progress.update(task, completed=done, total=total)
+
+        yield advance

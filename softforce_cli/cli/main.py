@@ -7,6 +7,7 @@ import sys
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from softforce_cli import __version__
 from softforce_cli.errors import SoftforceError
@@ -22,9 +23,17 @@ stderr = Console(stderr=True)
 
 
 def _register_commands() -> None:
-    from softforce_cli.cli import model_commands
+    from softforce_cli.cli import (
+        calibrate_command,
+        model_commands,
+        record_commands,
+        simulate_command,
+    )
 
     app.add_typer(model_commands.app, name="model")
+    app.add_typer(record_commands.app, name="record")
+    app.command("simulate")(simulate_command.simulate)
+    app.command("calibrate")(calibrate_command.calibrate)
 
 
 def _version(value: bool) -> None:
@@ -54,5 +63,5 @@ def main() -> None:
     except SoftforceError as error:
         if os.environ.get("SOFTFORCE_DEBUG"):
             raise
-        stderr.print(f"[bold red]error:[/] {error}", highlight=False, soft_wrap=True)
+        stderr.print(f"[bold red]error:[/] {escape(str(error))}", highlight=False, soft_wrap=True)
         sys.exit(1)

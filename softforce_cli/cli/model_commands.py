@@ -66,6 +66,7 @@ def show(
     table.add_row("file", summary["source"])
     table.add_row("mesh", summary["mesh"])
     table.add_row("nodes / tetrahedra", f"{summary['nodes']} / {summary['tetrahedra']}")
+    table.add_row("element", f"{summary['element']} ({summary['fe_nodes']} FE nodes)")
     table.add_row("volume", f"{summary['volume_mm3'] / 1e3:.1f} cm^3")
     table.add_row("mass", f"{summary['mass_kg']:.3f} kg")
     material = summary["material"]
@@ -105,7 +106,9 @@ def solve(
     inputs = robot.cable_inputs(values)
     with stderr.status("solving static equilibrium..."):
         equilibrium = solve_equilibrium(robot.fe_model, inputs)
-    write_deformed_mesh(output, robot.mesh, equilibrium.positions_mm, force=force)
+    # the mesh's own nodes (P2 mid-edge nodes follow them and are not written)
+    corners_mm = equilibrium.positions_mm[: robot.mesh.node_count]
+    write_deformed_mesh(output, robot.mesh, corners_mm, force=force)
     summary = {"output": str(output), "actuation": values.tolist(),
                **equilibrium_summary(robot, equilibrium)}
     if json_output:

@@ -12,9 +12,9 @@ import numpy as np
 import scipy.sparse as sp
 
 
-def element_dofs(tets: np.ndarray) -> np.ndarray:
-    """Global dof numbers of each element, node-major: (m, 4) -> (m, 12), dof = 3 node + i."""
-    return (3 * tets[:, :, None] + np.arange(3)).reshape(len(tets), 12)
+def element_dofs(elements: np.ndarray) -> np.ndarray:
+    """Global dof numbers of each element, node-major: (m, k) -> (m, 3k), dof = 3 node + i."""
+    return (3 * elements[:, :, None] + np.arange(3)).reshape(len(elements), -1)
 
 
 @dataclass(frozen=True)
@@ -24,7 +24,7 @@ class ReducedPattern:
     free_dofs : (f,) global dofs kept, sorted; the others are fixed (Dirichlet).
     reduced_index : (3n,) position of each global dof among free_dofs, -1 if fixed.
     slot      : (e,) position in the CSR data array of each kept element entry.
-    keep      : (m * 144,) bool, which element entries couple two free dofs.
+    keep      : (m * 9k^2,) bool, which element entries couple two free dofs.
     indices, indptr : the CSR structure, shape (f, f).
     """
 
@@ -36,15 +36,18 @@ class ReducedPattern:
     indptr: np.ndarray
 
     @classmethod
-    def build(cls, tets: np.ndarray, node_count: int, fixed_nodes: np.ndarray) -> ReducedPattern:
+    def build(cls, elements: np.ndarray, node_count: int,
+              fixed_nodes: np.ndarray) -> ReducedPattern:
+        """The pattern of elements (m, k) on node_count nodes with fixed_nodes clamped."""
         reduced = np.full(3 * node_count, -1)
         fixed = np.zeros(3 * node_count, dtype=bool)
         fixed[(3 * np.asarray(fixed_nodes)[:, None] + np.arange(3)).ravel()] = True
         free_dofs = np.flatnonzero(~fixed)
         reduced[free_dofs] = np.arange(len(free_dofs))
-        dofs = reduced[element_dofs(tets)]
-        rows = np.repeat(dofs, 12, axis=1).ravel()
-        cols = np.tile(dofs, (1, 12)).ravel()
+        dofs = reduced[element_dofs(elements)]
+        width = dofs.shape[1]
+        rows = np.repeat(dofs, width, axis=1).ravel()
+        cols = np.tile(dofs, (1, width)).ravel()
         keep = (rows >= 0) & (cols >= 0)
         keys = rows[keep].astype(np.int64) * len(free_dofs) + cols[keep]
         unique_keys, slot = np.unique(keys, return_inverse=True)
@@ -58,7 +61,7 @@ class ReducedPattern:
         return len(self.free_dofs)
 
     def assemble(self, element_matrices: np.ndarray) -> sp.csr_matrix:
-        """CSR (f, f) from element matrices (m, 12, 12) in element_dofs order."""
+        """CSR (f, f) from element matrices (m, 3k, 3k) in element_dofs order."""
         data = np.bincount(
             self.slot, weights=element_matrices.reshape(-1)[self.keep], minlength=len(self.indices)
         )
@@ -66,5 +69,5 @@ class ReducedPattern:
 
 
 def assemble_vector(element_vectors: np.ndarray, dofs: np.ndarray, size: int) -> np.ndarray:
-    """Sum element vectors (m, 12) at their global dofs (m, 12) into a vector (size,)."""
+    """Sum element vectors (m, 3k) at their global dofs (m, 3k) into a vector (size,)."""
     return np.bincount(dofs.ravel(), weights=element_vectors.ravel(), minlength=size)

@@ -1,7 +1,8 @@
-"""Barycentric attachment of arbitrary points (cable points, markers, probes) to a tet mesh.
+"""Attachment of arbitrary points (cable points, markers, probes) to a tetrahedral mesh.
 
 An attached point moves with the tetrahedron that contains it (or the nearest one), as SOFA's
-BarycentricMapping does: x_p = sum_a w_a x_a over the tetrahedron's four nodes.
+BarycentricMapping does: x_p = sum_a w_a x_a over the element's k nodes, with w_a the
+element's shape functions at the point (k = 4, barycentric, for P1; k = 10 for P2).
 """
 
 from __future__ import annotations
@@ -11,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
+
+from softforce_cli.fem.element import element_of
 
 # How many tetrahedra (nearest by centroid) are searched for the one containing a point.
 CANDIDATE_TETS = 32
@@ -31,9 +34,10 @@ def barycentric_coordinates(points: np.ndarray, corners: np.ndarray) -> np.ndarr
 class Attachment:
     """Points attached to a tetrahedral mesh.
 
-    node_indices : (p, 4) int64, the nodes of each point's tetrahedron.
-    weights      : (p, 4) float64 barycentric weights (summing to 1; may leave [0, 1] for a
-                   point outside the mesh, which then keeps its exact rest position).
+    node_indices : (p, k) int64, the nodes of each point's element (k = 4 or 10).
+    weights      : (p, k) float64 shape-function values at the point (summing to 1; may
+                   leave [0, 1] for a point outside the mesh, which then keeps its exact rest
+                   position).
     inside       : (p,) bool, whether the point lies in its tetrahedron.
     """
 
@@ -59,7 +63,7 @@ class Attachment:
 
     def interpolation(self, node_count: int) -> sp.csr_matrix:
         """Sparse (p, n) matrix mapping nodal values to the points."""
-        rows = np.repeat(np.arange(len(self)), 4)
+        rows = np.repeat(np.arange(len(self)), self.weights.shape[1])
         return sp.csr_matrix(
             (self.weights.ravel(), (rows, self.node_indices.ravel())), shape=(len(self), node_count)
         )
@@ -71,7 +75,7 @@ class Attachment:
         along direction_j at point j. directions (p, 3).
         """
         directions = np.asarray(directions, dtype=float)
-        rows = np.repeat(np.arange(len(self)), 12)
+        rows = np.repeat(np.arange(len(self)), 3 * self.weights.shape[1])
         cols = (3 * self.node_indices[:, :, None] + np.arange(3)).ravel()
         data = (self.weights[:, :, None] * directions[:, None, :]).ravel()
         return sp.csr_matrix((data, (rows, cols)), shape=(len(self), 3 * node_count))
@@ -85,11 +89,15 @@ class Attachment:
 
 
 def attach_points(nodes_mm: np.ndarray, tets: np.ndarray, points_mm: np.ndarray) -> Attachment:
-    """Attach points (p, 3) mm to the mesh (nodes (n, 3), tets (m, 4)).
+    """Attach points (p, 3) mm to the mesh (nodes (n, 3), elements (m, 4) or (m, 10)).
 
     Each point goes to the tetrahedron that contains it; a point outside every candidate goes
-    to the candidate whose barycentric coordinates are least negative (the nearest one).
+    to the candidate whose barycentric coordinates are least negative (the nearest one). Its
+    weights are the element's shape functions at its barycentric coordinates: the point
+    follows the element's (linear or quadratic) displacement field.
     """
+    element = element_of(tets)
+    elements, tets = tets, tets[:, :4]
     points_mm = np.atleast_2d(np.asarray(points_mm, dtype=float))
     centroids = nodes_mm[tets].mean(axis=1)
     k = min(CANDIDATE_TETS, len(tets))
@@ -98,7 +106,9 @@ def attach_points(nodes_mm: np.ndarray, tets: np.ndarray, points_mm: np.ndarray)
     coords = barycentric_coordinates(points_mm[:, None, :], nodes_mm[tets[candidates]])
     best = np.argmax(coords.min(axis=2), axis=1)
     rows = np.arange(len(points_mm))
-    weights = coords[rows, best]
+    barycentric = coords[rows, best]
     return Attachment(
-        tets[candidates[rows, best]], weights, weights.min(axis=1) >= -INSIDE_TOLERANCE
+        elements[candidates[rows, best]],
+        element.shape_values(barycentric),
+        barycentric.min(axis=1) >= -INSIDE_TOLERANCE,
     )

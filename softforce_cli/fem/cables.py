@@ -56,17 +56,17 @@ class Cable:
 
     @property
     def dofs(self) -> np.ndarray:
-        """(12 k,) global dofs of the nodes carrying the attached points, point-major."""
+        """(3 w k,) global dofs of the w nodes carrying each attached point, point-major."""
         return (3 * self.path.node_indices[:, :, None] + np.arange(3)).ravel()
 
     def jacobian_row(self, positions_mm: np.ndarray, node_count: int) -> np.ndarray:
         """H_a row (3n,): d(delta)/dx."""
         gradients = self.point_gradients(positions_mm)  # (k, 3)
-        values = self.path.weights[:, :, None] * gradients[:, None, :]  # (k, 4, 3)
+        values = self.path.weights[:, :, None] * gradients[:, None, :]  # (k, w, 3)
         return np.bincount(self.dofs, weights=values.ravel(), minlength=3 * node_count)
 
     def geometric_stiffness(self, positions_mm: np.ndarray, tension_n: float) -> np.ndarray:
-        """(12 k, 12 k) stiffness over `dofs` added by a tension: lam d2(L)/dx2.
+        """(3 w k, 3 w k) stiffness over `dofs` added by a tension: lam d2(L)/dx2.
 
         A taut cable resists sideways motion of its points: each segment contributes
         lam (I - t t^T) / l on the difference of its end points (the pull point is fixed).
@@ -84,12 +84,13 @@ class Cable:
             local[b, b] += block
             local[a, b] -= block
             local[b, a] -= block
-        # spread (3k, 12k): point i's coordinate c is sum_a w_ia x_(node a, c)
-        spread = np.zeros((k, 3, k, 4, 3))
+        # spread (3k, 3wk): point i's coordinate c is sum_a w_ia x_(node a, c)
+        width = self.path.weights.shape[1]
+        spread = np.zeros((k, 3, k, width, 3))
         for i in range(k):
             for c in range(3):
                 spread[i, c, i, :, c] = self.path.weights[i]
-        spread = spread.reshape(3 * k, 12 * k)
+        spread = spread.reshape(3 * k, 3 * width * k)
         return spread.T @ local[: 3 * k, : 3 * k] @ spread
 
 

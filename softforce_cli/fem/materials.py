@@ -3,6 +3,10 @@
 Every function is vectorised over (m, 3, 3) deformation gradients; stresses are in MPa
 (N/mm^2) and tangents are A[m, i, j, k, l] = dP_ij / dF_kl. The three laws agree to first
 order at F = I, so their small-strain responses are identical.
+
+Every law is linear in the Lame parameters, psi = psi_mu + psi_lambda: `part` evaluates the
+whole law ("all") or only its mu or lambda terms, which an element may integrate with
+different quadrature rules (P2-P0 integrates the lambda terms at one point per element).
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 LAWS = ("linear", "corotational", "neo-hookean")
+PARTS = ("all", "mu", "lambda")
 
 EYE = np.eye(3)
 # Fourth-order tensors as (9, 9) matrices over (i, j) x (k, l): d_ik d_jl, d_il d_jk, d_ij d_kl.
@@ -55,9 +60,16 @@ class Material:
     def lame(self) -> tuple[float, float]:
         return lame_parameters(self.young_modulus_mpa, self.poisson_ratio)
 
-    def energy_and_stress(self, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _lame_of(self, part: str) -> tuple[float, float]:
+        lam, mu = self.lame
+        parts = {"all": (lam, mu), "mu": (0.0, mu), "lambda": (lam, 0.0)}
+        if part not in parts:
+            raise ValueError(f"unknown part {part!r}; expected one of {', '.join(PARTS)}")
+        return parts[part]
+
+    def energy_and_stress(self, F: np.ndarray, part: str = "all") -> tuple[np.ndarray, np.ndarray]:
         """Energy density (m,) MPa (= mJ/mm^3) and P (m, 3, 3) MPa at F (m, 3, 3)."""
-        energy, stress, _ = _LAWS[self.law](F, *self.lame, False)
+        energy, stress, _ = _LAWS[self.law](F, *self._lame_of(part), False)
         return energy, stress
 
     def stress(self, F: np.ndarray) -> np.ndarray:
@@ -68,9 +80,10 @@ class Material:
         """Strain energy per reference volume (m,) in mJ/mm^3 (= MPa)."""
         return self.energy_and_stress(F)[0]
 
-    def stress_and_tangent(self, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def stress_and_tangent(self, F: np.ndarray, part: str = "all"
+                           ) -> tuple[np.ndarray, np.ndarray]:
         """P (m, 3, 3) MPa and A (m, 3, 3, 3, 3) MPa at deformation gradients F (m, 3, 3)."""
-        _, stress, tangent = _LAWS[self.law](F, *self.lame, True)
+        _, stress, tangent = _LAWS[self.law](F, *self._lame_of(part), True)
         return stress, tangent.reshape(len(F), 3, 3, 3, 3)
 
 

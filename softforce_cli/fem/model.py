@@ -10,30 +10,41 @@ import scipy.sparse as sp
 
 from softforce_cli.fem.assembly import ReducedPattern, assemble_vector, element_dofs
 from softforce_cli.fem.cables import Cable
-from softforce_cli.fem.materials import Material
-from softforce_cli.fem.tet_p1 import (
+from softforce_cli.fem.element import (
+    TetElement,
     deformation_gradients,
     element_forces,
+    element_of,
     element_stiffness,
     gradient_operators,
-    shape_gradients,
+    midside_offset_mm,
+    reference_gradients,
 )
+from softforce_cli.fem.materials import Material
+from softforce_cli.fem.tet_p1 import shape_gradients
 
 # Newtons per (kg * mm/s^2): forces are in N while lengths are in mm.
 NEWTON_PER_KG_MM_S2 = 1e-3
+# A P2 mid-edge node further than this fraction of the mesh's size from its edge's midpoint
+# means a curved element, which the straight-sided kernels would treat wrongly.
+MIDSIDE_TOLERANCE = 1e-9
 
 
 @dataclass(frozen=True)
 class FEModel:
     """A quasi-static tetrahedral FE model in the robot frame (mm, N, MPa, kg).
 
-    rest_nodes_mm : (n, 3) float64 rest positions.
-    tets          : (m, 4) int64, positively oriented.
+    rest_nodes_mm : (n, 3) float64 rest positions of every node (for P2: the mesh's nodes
+                    first, then the mid-edge nodes; see fem.element.element_mesh).
+    tets          : (m, 4) int64 linear (P1) or (m, 10) quadratic (P2, VTK node order)
+                    tetrahedra, positively oriented; the width selects the element.
     material      : the constitutive law and its parameters.
     fixed_nodes   : (k,) int64 nodes clamped at their rest position.
     node_masses_kg: (n,) float64 lumped masses.
     gravity_mm_s2 : (3,) float64.
     cables        : the cable actuators, in the robot file's order.
+    element_name  : "p1", "p2" or "p2-p0" (fem.element.ELEMENTS), or None for the element of
+                    the width of `tets` (p1 or p2).
     """
 
     rest_nodes_mm: np.ndarray
@@ -43,32 +54,48 @@ class FEModel:
     node_masses_kg: np.ndarray
     gravity_mm_s2: np.ndarray
     cables: tuple[Cable, ...] = ()
+    element_name: str | None = None
 
     @property
     def node_count(self) -> int:
         return len(self.rest_nodes_mm)
 
     @cached_property
+    def element(self) -> TetElement:
+        """The element type: element_name's, or P1 / P2 from the width of `tets`."""
+        return element_of(self.tets, self.element_name)
+
+    @cached_property
     def _reference(self) -> tuple[np.ndarray, np.ndarray]:
-        return shape_gradients(self.rest_nodes_mm, self.tets)
+        size = float(np.ptp(self.rest_nodes_mm, axis=0).max())
+        if midside_offset_mm(self.rest_nodes_mm, self.tets) > MIDSIDE_TOLERANCE * size:
+            raise ValueError("P2 mid-edge nodes must lie at their edges' midpoints "
+                             "(straight-sided elements); build them with element_mesh")
+        return reference_gradients(self.rest_nodes_mm, self.tets, self.element)
 
     @property
     def shape_gradients(self) -> np.ndarray:
-        """(m, 4, 3) 1/mm reference shape-function gradients."""
+        """(m, q, k, 3) 1/mm reference shape-function gradients at the quadrature points."""
         return self._reference[0]
 
     @property
-    def tet_volumes_mm3(self) -> np.ndarray:
+    def quadrature_weights_mm3(self) -> np.ndarray:
+        """(m, q) mm^3: element volume times the rule's weights."""
         return self._reference[1]
 
     @cached_property
+    def tet_volumes_mm3(self) -> np.ndarray:
+        """(m,) mm^3 element volumes."""
+        return self.quadrature_weights_mm3[:, : self.element.quadrature_count].sum(axis=1)
+
+    @cached_property
     def gradient_operators(self) -> np.ndarray:
-        """(m, 9, 12) B: vec(dF) = B dx_e."""
+        """(m, q, 9, 3k) B: vec(dF) = B dx_e (for reference; the kernels do not form it)."""
         return gradient_operators(self.shape_gradients)
 
     @cached_property
     def element_dofs(self) -> np.ndarray:
-        """(m, 12) global dofs of each element."""
+        """(m, 3k) global dofs of each element."""
         return element_dofs(self.tets)
 
     @cached_property
@@ -86,7 +113,7 @@ class FEModel:
         return np.outer(self.node_masses_kg, self.gravity_mm_s2) * NEWTON_PER_KG_MM_S2
 
     def deformation_gradients(self, positions_mm: np.ndarray) -> np.ndarray:
-        """(m, 3, 3) per-element F at node positions (n, 3)."""
+        """(m, q, 3, 3) F at each element's quadrature points, for node positions (n, 3)."""
         return deformation_gradients(positions_mm, self.tets, self.shape_gradients)
 
     def _nodal(self, element_vectors: np.ndarray) -> np.ndarray:
@@ -102,23 +129,43 @@ class FEModel:
         """(n, 3) N: the elastic forces g(x) = dE/dx that the body exerts against deformation."""
         return self.energy_and_forces(positions_mm)[1]
 
+    def _constitutive(self, F: np.ndarray, with_tangent: bool) -> tuple[np.ndarray, np.ndarray]:
+        """(energy density (m, q), P (m, q, 3, 3)), or with_tangent (P, A (m, q, 9, 9)), at
+        F (m, q, 3, 3): the whole law at every point, or (P2-P0) its mu terms at the main
+        rule's points and its lambda terms at the lambda rule's."""
+        m, q = F.shape[:2]
+        split = self.element.quadrature_count
+        runs = [(F, "all")] if split == q else [(F[:, :split], "mu"), (F[:, split:], "lambda")]
+        outputs = []
+        for stack, part in runs:
+            flat = stack.reshape(-1, 3, 3)
+            if with_tangent:
+                stress, tangent = self.material.stress_and_tangent(flat, part)
+                pair = (stress, tangent.reshape(-1, 9, 9))
+            else:
+                pair = self.material.energy_and_stress(flat, part)
+            outputs.append([a.reshape(m, -1, *a.shape[1:]) for a in pair])
+        stacked = [a[0] if len(a) == 1 else np.concatenate(a, axis=1)
+                   for a in zip(*outputs, strict=True)]
+        return stacked[0], stacked[1]
+
     def energy_and_forces(self, positions_mm: np.ndarray) -> tuple[float, np.ndarray]:
         """Elastic energy (mJ) and internal forces g(x) (n, 3) N, sharing one stress pass."""
-        density, stress = self.material.energy_and_stress(
-            self.deformation_gradients(positions_mm)
-        )
-        forces = element_forces(stress, self.gradient_operators, self.tet_volumes_mm3)
-        return float(density @ self.tet_volumes_mm3), self._nodal(forces)
+        F = self.deformation_gradients(positions_mm)
+        density, stress = self._constitutive(F, with_tangent=False)
+        weights = self.quadrature_weights_mm3
+        forces = element_forces(stress, self.shape_gradients, weights)
+        return float(density.ravel() @ weights.ravel()), self._nodal(forces)
 
     def internal_forces_and_stiffness(
         self, positions_mm: np.ndarray
     ) -> tuple[np.ndarray, sp.csr_matrix]:
         """g(x) (n, 3) N and the tangent stiffness dg/dx over the free dofs, CSR (f, f) N/mm."""
-        stress, tangent = self.material.stress_and_tangent(
-            self.deformation_gradients(positions_mm)
-        )
-        forces = element_forces(stress, self.gradient_operators, self.tet_volumes_mm3)
-        stiffness = element_stiffness(tangent, self.gradient_operators, self.tet_volumes_mm3)
+        F = self.deformation_gradients(positions_mm)
+        stress, tangent = self._constitutive(F, with_tangent=True)
+        weights = self.quadrature_weights_mm3
+        forces = element_forces(stress, self.shape_gradients, weights)
+        stiffness = element_stiffness(tangent, self.shape_gradients, weights)
         return self._nodal(forces), self.pattern.assemble(stiffness)
 
     def cable_shortenings(self, positions_mm: np.ndarray) -> np.ndarray:
@@ -148,7 +195,9 @@ class FEModel:
 
 
 def lumped_masses(nodes_mm: np.ndarray, tets: np.ndarray, density_kg_mm3: float) -> np.ndarray:
-    """(n,) kg: each tetrahedron's mass shared equally among its four nodes."""
+    """(n,) kg lumped masses of tets (m, 4) (a quarter per corner) or (m, 10) (HRZ: 1/36 per
+    corner, 4/27 per mid-edge node); they sum to density times volume."""
+    element = element_of(tets)
     _, volumes = shape_gradients(nodes_mm, tets)
-    per_corner = np.repeat((density_kg_mm3 * volumes / 4.0)[:, None], 4, axis=1)
-    return np.bincount(tets.ravel(), weights=per_corner.ravel(), minlength=len(nodes_mm))
+    shares = density_kg_mm3 * volumes[:, None] * element.lumped_mass_fractions
+    return np.bincount(tets.ravel(), weights=shares.ravel(), minlength=len(nodes_mm))

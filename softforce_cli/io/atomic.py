@@ -12,7 +12,7 @@ from typing import IO
 from softforce_cli.errors import OutputExistsError
 
 
-def _new_file_mode() -> int:
+def new_file_mode() -> int:
     """0o666 less the process umask: what open() would give, unlike mkstemp's 0o600."""
     umask = os.umask(0)
     os.umask(umask)
@@ -41,7 +41,7 @@ def atomic_open(path: Path, mode: str = "w", force: bool = False) -> Iterator[IO
             yield handle
             handle.flush()
             os.fsync(handle.fileno())
-        os.chmod(tmp, _new_file_mode())
+        os.chmod(tmp, new_file_mode())
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -62,7 +62,7 @@ def atomic_path(path: Path, force: bool = False) -> Iterator[Path]:
     tmp = Path(tmp_name)
     try:
         yield tmp
-        os.chmod(tmp, _new_file_mode())
+        os.chmod(tmp, new_file_mode())
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)

@@ -6,19 +6,19 @@ Every check raises ModelError with one line naming the file, the key and the fix
 from __future__ import annotations
 
 import math
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import tomllib
-
 from softforce_cli.errors import ModelError
 from softforce_cli.fem.cables import CONTROLS
+from softforce_cli.fem.element import ELEMENTS
 from softforce_cli.fem.materials import LAWS
 
 _KEYS = {
     "top": {"name", "mesh", "material", "fixed", "cable", "features", "marker"},
-    "mesh": {"path", "scale", "rotation_deg", "translation_mm"},
+    "mesh": {"path", "scale", "rotation_deg", "translation_mm", "element"},
     "material": {"law", "young_modulus_mpa", "poisson_ratio", "total_mass_kg", "density_kg_m3",
                  "gravity_mm_s2"},
     "fixed": {"box_mm"},
@@ -34,6 +34,7 @@ class MeshSpec:
     scale: float = 1.0
     rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     translation_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    element: str = "p1"
 
 
 @dataclass(frozen=True)
@@ -99,12 +100,17 @@ def parse_config(data: dict[str, Any], source: Path) -> RobotConfig:
     where.keys(mesh, "mesh", "mesh")
     if "path" not in mesh:
         raise ModelError(f"{source}: [mesh] needs `path`, the tetrahedral mesh file")
+    element = mesh.get("element", "p1")
+    if not isinstance(element, str) or element not in ELEMENTS:
+        raise ModelError(f"{source}: mesh.element {element!r} unknown; use "
+                         f"{' or '.join(repr(e) for e in ELEMENTS)} (see docs/robot_model.md)")
     mesh_spec = MeshSpec(
         path=(source.parent / mesh["path"]).resolve(),
         scale=where.positive(mesh.get("scale", 1.0), "mesh.scale"),
         rotation_deg=where.vector(mesh.get("rotation_deg", [0, 0, 0]), "mesh.rotation_deg"),
         translation_mm=where.vector(mesh.get("translation_mm", [0, 0, 0]),
                                     "mesh.translation_mm"),
+        element=element,
     )
     fixed = data.get("fixed", [])
     boxes = []
@@ -201,8 +207,8 @@ def _markers(markers: list[dict[str, Any]], where: _Where) -> tuple[MarkerSpec, 
         where.keys(marker, "marker", f"marker[{i}]")
         if "id" not in marker:
             raise ModelError(f"{where.source}: marker[{i}] needs an `id`")
-        specs.append(MarkerSpec(str(marker["id"]),
-                                where.vector(marker.get("position_mm"), f"marker[{i}].position_mm")))
+        position = where.vector(marker.get("position_mm"), f"marker[{i}].position_mm")
+        specs.append(MarkerSpec(str(marker["id"]), position))
     _unique([m.id for m in specs], "marker id", where.source)
     return tuple(specs)
 

@@ -8,8 +8,6 @@ import meshio
 import numpy as np
 
 from softforce_cli.io.atomic import atomic_path, atomic_write_text, check_writable
-from softforce_cli.model.features import nearest_surface_nodes
-from softforce_cli.model.mesh import TetMesh
 from softforce_cli.model.procedural import DiamondGeometry, diamond_mesh
 
 ROBOT_FILE = "diamond.toml"
@@ -18,19 +16,29 @@ ARMS = (("north", (0.0, 1.0)), ("west", (-1.0, 0.0)), ("south", (0.0, -1.0)),
         ("east", (1.0, 0.0)))
 
 
-def marker_targets(geometry: DiamondGeometry) -> dict[str, np.ndarray]:
-    """Where the nine calibration markers go (snapped to surface nodes): the apex top, the
-    outer point of each elbow, and the middle of each upper bar's upper face."""
-    elbow_outer = geometry.elbow_radius_mm + geometry.elbow_joint_radius_mm
-    bar_mid_r = 0.5 * geometry.elbow_radius_mm
-    bar_mid_z = 0.5 * (geometry.elbow_height_mm + geometry.apex_height_mm) + 8.0
-    targets = {"apex": np.array([0.0, 0.0, geometry.apex_height_mm])}
+def marker_positions(geometry: DiamondGeometry) -> dict[str, np.ndarray]:
+    """The nine calibration markers, on the ideal surface of the solid (mm): the apex top, the
+    outer point of each elbow, and the middle of each upper bar's upper face.
+
+    They depend on the geometry only, not on the mesh, so robots of every resolution carry
+    the same physical markers (each mesh attaches them barycentrically).
+    """
+    g = geometry
+    elbow = np.array([g.elbow_radius_mm, g.elbow_height_mm])  # (r, z)
+    apex_axis = np.array([0.0, g.apex_height_mm - 0.5 * g.apex_depth_mm])
+    along = (apex_axis - elbow) / np.linalg.norm(apex_axis - elbow)
+    outward = np.array([-along[1], along[0]])  # the upper face's normal, pointing up and out
+    if outward[1] < 0:
+        outward = -outward
+    bar_r, bar_z = 0.5 * (elbow + apex_axis) + 0.5 * g.bar_thickness_mm * outward
+    elbow_outer = g.elbow_radius_mm + g.elbow_joint_radius_mm
+    markers = {"apex": np.array([0.0, 0.0, g.apex_height_mm])}
     for name, (dx, dy) in ARMS:
-        targets[f"elbow_{name}"] = np.array([elbow_outer * dx, elbow_outer * dy,
-                                             geometry.elbow_height_mm])
+        markers[f"elbow_{name}"] = np.array([elbow_outer * dx, elbow_outer * dy,
+                                             g.elbow_height_mm])
     for name, (dx, dy) in ARMS:
-        targets[f"bar_{name}"] = np.array([bar_mid_r * dx, bar_mid_r * dy, bar_mid_z])
-    return targets
+        markers[f"bar_{name}"] = np.array([bar_r * dx, bar_r * dy, bar_z])
+    return markers
 
 
 def robot_toml(mesh_file: str, markers: dict[str, np.ndarray], resolution: str) -> str:
@@ -72,10 +80,7 @@ def write_default_robot(directory: Path, resolution: str = "coarse",
         check_writable(path, force)
     geometry = DiamondGeometry()
     nodes, tets = diamond_mesh(resolution, geometry)
-    mesh = TetMesh(nodes, tets)
-    targets = marker_targets(geometry)
-    indices, _ = nearest_surface_nodes(nodes, mesh.surface_nodes, np.array(list(targets.values())))
-    markers = dict(zip(targets, nodes[indices], strict=True))
+    markers = marker_positions(geometry)
     directory.mkdir(parents=True, exist_ok=True)
     with atomic_path(mesh_path, force=force) as tmp:
         meshio.write_points_cells(tmp, nodes, [("tetra", tets)], file_format="vtu")

@@ -60,9 +60,13 @@ _GMSH_LOCK = threading.Lock()
 
 
 def diamond_mesh(
-    resolution: str = "coarse", geometry: DiamondGeometry = DiamondGeometry()
+    resolution: str = "coarse", geometry: DiamondGeometry = DiamondGeometry(),
+    mesh_size_mm: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Tetrahedral mesh of the procedural Diamond robot.
+
+    `mesh_size_mm`, if given, replaces the resolution's characteristic length (convergence
+    studies mesh the same solid at other sizes).
 
     -> nodes (n, 3) float64 mm (z up, robot frame, origin at base centre), tets (m, 4)
     int64 positively oriented, every node used. The same arguments give identical arrays.
@@ -86,7 +90,7 @@ def diamond_mesh(
             gmsh.initialize(readConfigFiles=False, interruptible=False)
         try:
             gmsh.model.add("softforce_diamond")
-            _set_options(MESH_SIZE_MM[resolution])
+            _set_options(MESH_SIZE_MM[resolution] if mesh_size_mm is None else mesh_size_mm)
             _build_solid(geometry)
             gmsh.model.mesh.generate(3)
             nodes, tets = _extract_tets()

@@ -1,7 +1,10 @@
 """A robot: its mesh in the robot frame with supports, cables, feature points and markers.
 
 `load_robot` reads a robot TOML and checks it against its mesh; `Robot.fe_model` is the
-finite element model the estimators use.
+finite element model the estimators use, with the element type of `[mesh] element`. With P2
+elements the FE model has more nodes than the mesh: the mesh's n nodes first, in their order,
+then one per edge (`Robot.fe_mesh`), so positions[:n] of any FE configuration are the mesh's
+nodes.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import numpy as np
 from softforce_cli.errors import ModelError
 from softforce_cli.fem.attachment import Attachment, attach_points
 from softforce_cli.fem.cables import Cable, CableInputs
+from softforce_cli.fem.element import ElementMesh, element_mesh
 from softforce_cli.fem.materials import Material
 from softforce_cli.fem.model import FEModel, lumped_masses
 from softforce_cli.model.config import CableSpec, RobotConfig, load_config
@@ -33,9 +37,10 @@ KG_M3_TO_KG_MM3 = 1e-9
 class Robot:
     """Everything softforce knows about a robot, in the robot frame (mm).
 
-    fixed_nodes    : (k,) clamped nodes (inside a [[fixed]] box, or used by no element).
-    feature_nodes  : (p,) surface nodes used as effectors (feature points).
-    marker_ids     : marker names, in file order; marker_points attaches them to the mesh.
+    fixed_nodes    : (k,) clamped mesh nodes (inside a [[fixed]] box, or used by no element).
+    feature_nodes  : (p,) surface nodes used as effectors (feature points); mesh nodes, which
+                     are FE nodes of the same number for either element.
+    marker_ids     : marker names, in file order; marker_points attaches them to the FE mesh.
     """
 
     config: RobotConfig
@@ -43,7 +48,6 @@ class Robot:
     fixed_nodes: np.ndarray
     feature_nodes: np.ndarray
     marker_ids: tuple[str, ...]
-    marker_points: Attachment
 
     @property
     def name(self) -> str:
@@ -70,25 +74,47 @@ class Robot:
         return self.density_kg_mm3 * self.mesh.volume_mm3
 
     @cached_property
+    def fe_mesh(self) -> ElementMesh:
+        """The FE nodes (the mesh's, then P2 mid-edge nodes) and elements of `[mesh] element`."""
+        return element_mesh(self.mesh.nodes_mm, self.mesh.tets, self.config.mesh.element)
+
+    @property
+    def rest_nodes_mm(self) -> np.ndarray:
+        """(N, 3) rest positions of every FE node; the first mesh.node_count are the mesh's."""
+        return self.fe_mesh.nodes_mm
+
+    def attach(self, points_mm: np.ndarray) -> Attachment:
+        """Attach points (p, 3) mm to the FE mesh, following its elements' shape functions."""
+        return attach_points(self.fe_mesh.nodes_mm, self.fe_mesh.elements, points_mm)
+
+    @cached_property
+    def marker_points(self) -> Attachment:
+        """The markers attached to the FE mesh, in marker_ids order."""
+        positions = np.array([m.position_mm for m in self.config.markers]).reshape(-1, 3)
+        return self.attach(positions)
+
+    @cached_property
     def cables(self) -> tuple[Cable, ...]:
-        nodes = self.mesh.nodes_mm
+        nodes = self.rest_nodes_mm
         return tuple(
-            Cable.through(spec.name, attach_points(nodes, self.mesh.tets, spec.path_mm),
-                          spec.pull_point_mm, nodes)
+            Cable.through(spec.name, self.attach(spec.path_mm), spec.pull_point_mm, nodes)
             for spec in self.cable_specs
         )
 
     @cached_property
     def fe_model(self) -> FEModel:
-        nodes = self.mesh.nodes_mm
+        fe_mesh = self.fe_mesh
         return FEModel(
-            rest_nodes_mm=nodes,
-            tets=self.mesh.tets,
+            rest_nodes_mm=fe_mesh.nodes_mm,
+            tets=fe_mesh.elements,
             material=self.material,
-            fixed_nodes=self.fixed_nodes,
-            node_masses_kg=lumped_masses(nodes, self.mesh.tets, self.density_kg_mm3),
+            # P2: the mid-edge nodes of clamped edges too, so the same faces stay clamped
+            fixed_nodes=fe_mesh.with_midside(self.fixed_nodes),
+            node_masses_kg=lumped_masses(fe_mesh.nodes_mm, fe_mesh.elements,
+                                         self.density_kg_mm3),
             gravity_mm_s2=np.asarray(self.config.material.gravity_mm_s2, dtype=float),
             cables=self.cables,
+            element_name=fe_mesh.element.name,
         )
 
     @cached_property
@@ -99,7 +125,7 @@ class Robot:
     @property
     def marker_positions_mm(self) -> np.ndarray:
         """(k, 3) marker positions on the rest shape."""
-        return self.marker_points.positions(self.mesh.nodes_mm)
+        return self.marker_points.positions(self.rest_nodes_mm)
 
     def cable_inputs(self, values: np.ndarray) -> CableInputs:
         """Actuation values (a,) with each cable's control mode from the robot file."""
@@ -148,7 +174,6 @@ def build_robot(config: RobotConfig, mesh: TetMesh) -> Robot:
         fixed_nodes=fixed_nodes,
         feature_nodes=features,
         marker_ids=tuple(m.id for m in config.markers),
-        marker_points=attach_points(nodes, mesh.tets, marker_positions),
     )
 
 

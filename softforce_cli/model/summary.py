@@ -20,6 +20,8 @@ def robot_summary(robot: Robot) -> dict[str, Any]:
         "mesh": str(robot.config.mesh.path),
         "nodes": mesh.node_count,
         "tetrahedra": mesh.tet_count,
+        "element": robot.config.mesh.element,
+        "fe_nodes": robot.fe_mesh.node_count,
         "surface_triangles": len(mesh.surface_faces),
         "bounds_mm": np.round(mesh.bounds_mm, 3).tolist(),
         "volume_mm3": round(mesh.volume_mm3, 3),
@@ -44,7 +46,8 @@ def robot_summary(robot: Robot) -> dict[str, Any]:
 
 def equilibrium_summary(robot: Robot, equilibrium: Equilibrium) -> dict[str, Any]:
     """Displacements, cable state, reactions and convergence of a static solve."""
-    displacement = equilibrium.positions_mm - robot.mesh.nodes_mm
+    # over the mesh's own nodes, the first node_count FE nodes (P2 adds mid-edge nodes)
+    displacement = equilibrium.positions_mm[: robot.mesh.node_count] - robot.mesh.nodes_mm
     magnitude = np.linalg.norm(displacement, axis=1)
     top = int(np.argmax(robot.mesh.nodes_mm[:, 2]))
     return {

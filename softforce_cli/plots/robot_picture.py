@@ -7,18 +7,19 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-from softforce_cli.io.atomic import atomic_path  # noqa: E402
-from softforce_cli.model.robot import Robot  # noqa: E402
+from softforce_cli.io.atomic import atomic_path
+from softforce_cli.model.robot import Robot
 
 
 def save_robot_picture(robot: Robot, path: Path, positions_mm: np.ndarray | None = None,
                        force: bool = False) -> None:
-    """PNG of the robot (rest shape, or `positions_mm` (n, 3)) from two viewpoints."""
-    nodes = robot.mesh.nodes_mm if positions_mm is None else positions_mm
+    """PNG of the robot (rest shape, or FE node positions `positions_mm` (N, 3)) from two
+    viewpoints."""
+    nodes = robot.rest_nodes_mm if positions_mm is None else positions_mm
     faces = robot.mesh.surface_faces
     figure = plt.figure(figsize=(12, 6), dpi=110)
     for column, (elevation, azimuth) in enumerate(((25, -60), (90, -90))):

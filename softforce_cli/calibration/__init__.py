@@ -1,0 +1,1 @@
+"""Calibration (paper section IV, Algorithm 1): camera-to-robot transform and actuator inputs."""

@@ -1,0 +1,244 @@
+"""The softforce recording format (DESIGN.md section 5): topic names and per-message codecs.
+
+Pure functions between the parts of an RgbdFrame and the bytes of one MCAP message; the MCAP
+container itself is handled by mcap_writer.py and mcap_reader.py.
+
+| topic                                      | schema                       | encoding  |
+|--------------------------------------------|------------------------------|-----------|
+| /camera/color/image_raw                    | foxglove.RawImage, rgb8      | protobuf  |
+| /camera/aligned_depth_to_color/image_raw   | foxglove.RawImage, 16UC1 mm  | protobuf  |
+| /camera/color/camera_info                  | foxglove.CameraCalibration   | protobuf  |
+| /robot/actuation                           | softforce.Actuation          | json      |
+| /markers                                   | softforce.Markers            | json      |
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+from google.protobuf.message import DecodeError
+from google.protobuf.timestamp_pb2 import Timestamp
+
+from softforce_cli.camera.frame import Actuation, Markers
+from softforce_cli.camera.intrinsics import CameraIntrinsics
+from softforce_cli.errors import RecordingError
+
+COLOR_TOPIC = "/camera/color/image_raw"
+DEPTH_TOPIC = "/camera/aligned_depth_to_color/image_raw"
+CAMERA_INFO_TOPIC = "/camera/color/camera_info"
+ACTUATION_TOPIC = "/robot/actuation"
+MARKERS_TOPIC = "/markers"
+
+REQUIRED_TOPICS = (COLOR_TOPIC, DEPTH_TOPIC, CAMERA_INFO_TOPIC)
+FRAME_TOPICS = (*REQUIRED_TOPICS, ACTUATION_TOPIC, MARKERS_TOPIC)
+
+OPTICAL_FRAME_ID = "camera_color_optical_frame"
+METADATA_NAME = "softforce"
+CONTROL_MODES = ("displacement", "force")
+
+COLOR_ENCODING = "rgb8"
+DEPTH_ENCODINGS = ("16UC1", "mono16")  # mono16 is Foxglove's alias of the same layout
+
+ACTUATION_SCHEMA_NAME = "softforce.Actuation"
+ACTUATION_JSON_SCHEMA = {
+    "title": ACTUATION_SCHEMA_NAME,
+    "description": "Actuator inputs of one frame: cable displacements in mm or forces in N.",
+    "type": "object",
+    "properties": {
+        "names": {"type": "array", "items": {"type": "string"}},
+        "control": {"type": "string", "enum": list(CONTROL_MODES)},
+        "values": {"type": "array", "items": {"type": "number"}},
+    },
+    "required": ["names", "control", "values"],
+}
+MARKERS_SCHEMA_NAME = "softforce.Markers"
+MARKERS_JSON_SCHEMA = {
+    "title": MARKERS_SCHEMA_NAME,
+    "description": "Observed marker positions in mm in the camera optical frame.",
+    "type": "object",
+    "properties": {
+        "ids": {"type": "array", "items": {"type": "string"}},
+        "positions_mm": {
+            "type": "array",
+            "items": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3},
+        },
+    },
+    "required": ["ids", "positions_mm"],
+}
+
+
+def timestamp_from_ns(time_ns: int) -> Timestamp:
+    seconds, nanos = divmod(int(time_ns), 1_000_000_000)
+    return Timestamp(seconds=seconds, nanos=nanos)
+
+
+def encode_color(color: np.ndarray, time_ns: int) -> bytes:
+    """(h, w, 3) uint8 RGB -> serialized foxglove.RawImage rgb8."""
+    height, width = color.shape[:2]
+    return RawImage(
+        timestamp=timestamp_from_ns(time_ns),
+        frame_id=OPTICAL_FRAME_ID,
+        width=width,
+        height=height,
+        encoding=COLOR_ENCODING,
+        step=3 * width,
+        data=np.ascontiguousarray(color, dtype=np.uint8).tobytes(),
+    ).SerializeToString()
+
+
+def encode_depth(depth_mm: np.ndarray, time_ns: int) -> bytes:
+    """(h, w) uint16 depth in mm -> serialized foxglove.RawImage 16UC1 (little-endian)."""
+    height, width = depth_mm.shape
+    return RawImage(
+        timestamp=timestamp_from_ns(time_ns),
+        frame_id=OPTICAL_FRAME_ID,
+        width=width,
+        height=height,
+        encoding="16UC1",
+        step=2 * width,
+        data=np.ascontiguousarray(depth_mm, dtype="<u2").tobytes(),
+    ).SerializeToString()
+
+
+def encode_camera_info(intrinsics: CameraIntrinsics, time_ns: int) -> bytes:
+    """Pinhole intrinsics -> serialized foxglove.CameraCalibration (plumb_bob, zero distortion)."""
+    fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+    return CameraCalibration(
+        timestamp=timestamp_from_ns(time_ns),
+        frame_id=OPTICAL_FRAME_ID,
+        width=intrinsics.width,
+        height=intrinsics.height,
+        distortion_model="plumb_bob",
+        D=[0.0] * 5,
+        K=[fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
+        R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        P=[fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+    ).SerializeToString()
+
+
+def encode_actuation(actuation: Actuation) -> bytes:
+    document = {
+        "names": list(actuation.names),
+        "control": actuation.control,
+        "values": [float(v) for v in np.asarray(actuation.values, dtype=float)],
+    }
+    return json.dumps(document).encode()
+
+
+def encode_markers(markers: Markers) -> bytes:
+    positions = np.asarray(markers.positions_mm, dtype=float).reshape(-1, 3)
+    document = {"ids": list(markers.ids), "positions_mm": positions.tolist()}
+    return json.dumps(document).encode()
+
+
+def _parse_raw_image(data: bytes, what: str) -> RawImage:
+    try:
+        return RawImage.FromString(data)
+    except DecodeError as error:
+        raise RecordingError(f"{what} is not a valid foxglove.RawImage ({error})") from error
+
+
+def _image_rows(image: RawImage, bytes_per_pixel: int, what: str) -> np.ndarray:
+    """(height, width * bytes_per_pixel) uint8 view of the image rows, padding dropped."""
+    row_bytes = image.width * bytes_per_pixel
+    if image.width == 0 or image.height == 0 or image.step < row_bytes:
+        raise RecordingError(
+            f"{what} has size {image.width}x{image.height} and row step {image.step} bytes; "
+            f"expected a non-empty image with step >= {row_bytes}"
+        )
+    if len(image.data) < image.step * image.height:
+        raise RecordingError(
+            f"{what} holds {len(image.data)} bytes, fewer than {image.height} rows of "
+            f"{image.step} bytes"
+        )
+    rows = np.frombuffer(image.data, dtype=np.uint8, count=image.step * image.height)
+    return rows.reshape(image.height, image.step)[:, :row_bytes]
+
+
+def decode_color(data: bytes, what: str = "colour image") -> np.ndarray:
+    """Serialized foxglove.RawImage rgb8 -> (h, w, 3) uint8 RGB (a writable copy)."""
+    image = _parse_raw_image(data, what)
+    if image.encoding != COLOR_ENCODING:
+        raise RecordingError(
+            f"{what} has encoding '{image.encoding}'; softforce reads '{COLOR_ENCODING}'"
+        )
+    rows = _image_rows(image, 3, what)
+    return rows.reshape(image.height, image.width, 3).copy()
+
+
+def decode_depth(data: bytes, what: str = "depth image") -> np.ndarray:
+    """Serialized foxglove.RawImage 16UC1 -> (h, w) uint16 depth in mm (a writable copy)."""
+    image = _parse_raw_image(data, what)
+    if image.encoding not in DEPTH_ENCODINGS:
+        raise RecordingError(
+            f"{what} has encoding '{image.encoding}'; softforce reads '16UC1' depth in mm"
+        )
+    rows = _image_rows(image, 2, what)
+    return np.ascontiguousarray(rows).view("<u2").astype(np.uint16)
+
+
+def decode_camera_info(data: bytes, what: str = "camera_info") -> CameraIntrinsics:
+    """Serialized foxglove.CameraCalibration -> pinhole intrinsics (from K)."""
+    try:
+        calibration = CameraCalibration.FromString(data)
+    except DecodeError as error:
+        raise RecordingError(f"{what} is not a valid foxglove.CameraCalibration") from error
+    K = list(calibration.K)
+    if len(K) != 9 or K[0] <= 0.0 or K[4] <= 0.0:
+        raise RecordingError(
+            f"{what} has no usable camera matrix K (got {K}); the camera is uncalibrated"
+        )
+    if calibration.width == 0 or calibration.height == 0:
+        raise RecordingError(f"{what} gives no image size (width and height are 0)")
+    return CameraIntrinsics(
+        width=int(calibration.width),
+        height=int(calibration.height),
+        fx=float(K[0]),
+        fy=float(K[4]),
+        cx=float(K[2]),
+        cy=float(K[5]),
+    )
+
+
+def _load_json(data: bytes, what: str) -> dict:
+    try:
+        document = json.loads(data)
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise RecordingError(f"{what} is not valid JSON ({error})") from error
+    if not isinstance(document, dict):
+        raise RecordingError(f"{what} should be a JSON object, got {type(document).__name__}")
+    return document
+
+
+def decode_actuation(data: bytes, what: str = "actuation message") -> Actuation:
+    document = _load_json(data, what)
+    try:
+        names = tuple(str(name) for name in document["names"])
+        control = str(document["control"])
+        values = np.asarray(document["values"], dtype=float).reshape(-1)
+    except (KeyError, TypeError, ValueError) as error:
+        raise RecordingError(
+            f"{what} should hold 'names', 'control' and numeric 'values' ({error!r})"
+        ) from error
+    if control not in CONTROL_MODES:
+        raise RecordingError(f"{what} has control '{control}'; expected one of {CONTROL_MODES}")
+    if len(names) != len(values):
+        raise RecordingError(f"{what} has {len(names)} names but {len(values)} values")
+    return Actuation(names=names, control=control, values=values)
+
+
+def decode_markers(data: bytes, what: str = "markers message") -> Markers:
+    document = _load_json(data, what)
+    try:
+        ids = tuple(str(marker_id) for marker_id in document["ids"])
+        positions = np.asarray(document["positions_mm"], dtype=float).reshape(-1, 3)
+    except (KeyError, TypeError, ValueError) as error:
+        raise RecordingError(
+            f"{what} should hold 'ids' and 'positions_mm' as [[x, y, z], ...] ({error!r})"
+        ) from error
+    if len(ids) != len(positions):
+        raise RecordingError(f"{what} has {len(ids)} ids but {len(positions)} positions")
+    return Markers(ids=ids, positions_mm=positions)

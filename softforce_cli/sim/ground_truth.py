@@ -1,0 +1,135 @@
+"""Ground truth of a scenario: the truth robot (fine mesh, its own law) solved under each load.
+
+The truth robot is deliberately not the estimator's model: a finer mesh and, by default, a
+Neo-Hookean law, so that accuracy figures measured on synthetic data are not inverse crimes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from softforce_cli.errors import ScenarioError, SolverError
+from softforce_cli.fem.attachment import Attachment, attach_points
+from softforce_cli.fem.statics import Equilibrium, PointLoads, solve_equilibrium
+from softforce_cli.model.config import load_config
+from softforce_cli.model.mesh_io import read_tet_mesh
+from softforce_cli.model.robot import Robot, build_robot
+from softforce_cli.sim.scenario import FrameSpec, LoadSpec, Scenario
+
+# Load steps tried, in turn, when a state cannot be reached in one Newton solve.
+CONTINUATION_STEPS = (1, 4, 16)
+
+
+@dataclass(frozen=True)
+class Contact:
+    """A load as it acts in the solved state.
+
+    kind          : "weight" or "probe".
+    rest_point_mm : (3,) where it is attached on the rest shape, robot frame.
+    point_mm      : (3,) the same material point in the deformed state.
+    force_n       : (3,) force on the robot, N.
+    normal        : (3,) outward surface normal at the point (rest shape), or zeros inside.
+    """
+
+    kind: str
+    rest_point_mm: np.ndarray
+    point_mm: np.ndarray
+    force_n: np.ndarray
+    normal: np.ndarray
+
+
+@dataclass(frozen=True)
+class TruthState:
+    equilibrium: Equilibrium
+    contacts: tuple[Contact, ...]
+
+
+def truth_robot(scenario: Scenario) -> Robot:
+    """The scenario's robot, with its law replaced by the scenario's `law` if given."""
+    config = load_config(scenario.robot)
+    if scenario.law is not None:
+        config = dataclasses.replace(
+            config, material=dataclasses.replace(config.material, law=scenario.law)
+        )
+    spec = config.mesh
+    mesh = read_tet_mesh(spec.path, spec.scale, spec.rotation_deg, spec.translation_mm)
+    return build_robot(config, mesh)
+
+
+def load_points(
+    robot: Robot, loads: tuple[LoadSpec, ...]
+) -> tuple[Attachment, np.ndarray, np.ndarray]:
+    """Attachment of each load's point, its force vector (p, 3) N and surface normal (p, 3).
+
+    A probe acts at the surface node nearest to its point (a probe touches the skin); a
+    weight hangs from the material point itself.
+    """
+    mesh = robot.mesh
+    points, forces, normals = [], [], []
+    for load in loads:
+        point = np.array(load.point_mm)
+        normal = np.zeros(3)
+        if load.kind == "probe":
+            surface = mesh.surface_nodes
+            node = surface[np.argmin(np.linalg.norm(mesh.nodes_mm[surface] - point, axis=1))]
+            point, normal = mesh.nodes_mm[node], mesh.vertex_normals[node]
+        direction = -normal if load.direction is None else np.array(load.direction)
+        points.append(point)
+        forces.append(load.force_n * direction)
+        normals.append(normal)
+    attachment = attach_points(mesh.nodes_mm, mesh.tets, np.array(points).reshape(-1, 3))
+    return attachment, np.array(forces).reshape(-1, 3), np.array(normals).reshape(-1, 3)
+
+
+def solve_frame(robot: Robot, frame: FrameSpec, start: Equilibrium | None) -> TruthState:
+    """Equilibrium of the truth robot under a frame's actuation and loads.
+
+    Starts from `start` (the previous frame) and, if Newton fails there, walks to the target
+    in equal load steps (continuation).
+    """
+    if len(frame.actuation) != len(robot.cable_specs):
+        raise ScenarioError(
+            f"a frame gives {len(frame.actuation)} actuation values for the "
+            f"{len(robot.cable_specs)} cables of {robot.config.source}"
+        )
+    target = np.array(frame.actuation, dtype=float)
+    attachment, forces, normals = load_points(robot, frame.loads)
+    model = robot.fe_model
+    controlled = robot.cable_inputs(target).displacement_controlled
+    previous_actuation = (
+        np.zeros_like(target)
+        if start is None
+        else np.where(controlled, start.cable_shortenings_mm, start.cable_tensions_n)
+    )
+    previous_forces = np.zeros_like(forces)
+    last_error: SolverError | None = None
+    for steps in CONTINUATION_STEPS:
+        state = start
+        try:
+            for step in range(1, steps + 1):
+                share = step / steps
+                inputs = robot.cable_inputs(
+                    previous_actuation + share * (target - previous_actuation)
+                )
+                loads = PointLoads(attachment, previous_forces + share * (forces - previous_forces))
+                state = solve_equilibrium(
+                    model, inputs, loads, None if state is None else state.positions_mm
+                )
+            break
+        except SolverError as error:
+            last_error = error
+    else:
+        raise ScenarioError(
+            f"the truth robot cannot reach a frame's state even in "
+            f"{CONTINUATION_STEPS[-1]} load steps: {last_error}"
+        )
+    deformed = attachment.positions(state.positions_mm)
+    rest = attachment.positions(robot.mesh.nodes_mm)
+    contacts = tuple(
+        Contact(load.kind, rest[i], deformed[i], forces[i], normals[i])
+        for i, load in enumerate(frame.loads)
+    )
+    return TruthState(state, contacts)

@@ -1,0 +1,263 @@
+"""Simulation scenarios (TOML): the truth robot, the camera, and a timeline of loads.
+
+A scenario describes what a virtual experiment does; softforce_cli.sim.simulate turns it into
+a recording and a ground-truth sidecar. The format is documented in docs/scenarios.md.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from softforce_cli.errors import ScenarioError
+from softforce_cli.fem.materials import LAWS
+
+LOAD_KINDS = ("weight", "probe")
+_KEYS = {
+    "top": {
+        "name",
+        "robot",
+        "law",
+        "seed",
+        "frame_interval_s",
+        "camera",
+        "scene",
+        "markers",
+        "frame",
+    },
+    "camera": {
+        "width",
+        "height",
+        "horizontal_fov_deg",
+        "position_mm",
+        "look_at_mm",
+        "up_hint",
+        "noise",
+    },
+    "scene": {"table_z_mm", "robot_rgb", "probe_rgb", "weight_rgb", "table_rgb"},
+    "markers": {"publish", "sigma_mm"},
+    "frame": {"actuation", "repeat", "load"},
+    "load": {"kind", "point_mm", "force_n", "mass_g", "direction"},
+}
+GRAVITY_N_PER_G = 9.81e-3
+
+
+@dataclass(frozen=True)
+class LoadSpec:
+    """An external load on the robot.
+
+    kind      : "weight" (hangs from the point, force straight down) or "probe" (a rigid rod
+                pressing at the surface point nearest to point_mm).
+    point_mm  : (3,) where it acts, on the rest shape, robot frame.
+    force_n   : magnitude in N.
+    direction : (3,) unit direction of the force on the robot; None for a probe means into the
+                surface (minus the surface normal).
+    """
+
+    kind: str
+    point_mm: tuple[float, float, float]
+    force_n: float
+    direction: tuple[float, float, float] | None
+
+
+@dataclass(frozen=True)
+class FrameSpec:
+    """A static state held for `repeat` frames (independent sensor noise on each)."""
+
+    actuation: tuple[float, ...]
+    loads: tuple[LoadSpec, ...]
+    repeat: int
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    width: int
+    height: int
+    horizontal_fov_deg: float
+    position_mm: tuple[float, float, float]
+    look_at_mm: tuple[float, float, float]
+    up_hint: tuple[float, float, float]
+    noise: bool
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    table_z_mm: float
+    robot_rgb: tuple[int, int, int]
+    probe_rgb: tuple[int, int, int]
+    weight_rgb: tuple[int, int, int]
+    table_rgb: tuple[int, int, int]
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario; `robot` is the ground-truth robot file (a fine mesh)."""
+
+    source: Path
+    name: str
+    robot: Path
+    law: str | None
+    seed: int
+    frame_interval_s: float
+    camera: CameraSpec
+    scene: SceneSpec
+    publish_markers: bool
+    marker_sigma_mm: float
+    frames: tuple[FrameSpec, ...]
+
+    @property
+    def frame_count(self) -> int:
+        return sum(frame.repeat for frame in self.frames)
+
+
+def load_scenario(path: Path) -> Scenario:
+    """Read and validate a scenario TOML file."""
+    path = Path(path)
+    if not path.is_file():
+        raise ScenarioError(f"scenario file {path} not found")
+    try:
+        data = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
+        raise ScenarioError(f"{path}: not valid TOML ({error})") from error
+    check = _Checker(path)
+    check.keys(data, "top", "top level")
+    if "robot" not in data:
+        raise ScenarioError(f"{path}: needs `robot`, the ground-truth robot file")
+    law = data.get("law")
+    if law is not None and law not in LAWS:
+        raise ScenarioError(f"{path}: law {law!r} unknown; use one of {', '.join(LAWS)}")
+    frames = data.get("frame", [])
+    if not frames:
+        raise ScenarioError(f"{path}: no [[frame]]; a scenario needs at least one")
+    camera = data.get("camera", {})
+    check.keys(camera, "camera", "[camera]")
+    scene = data.get("scene", {})
+    check.keys(scene, "scene", "[scene]")
+    markers = data.get("markers", {})
+    check.keys(markers, "markers", "[markers]")
+    return Scenario(
+        source=path,
+        name=str(data.get("name", path.stem)),
+        robot=(path.parent / data["robot"]).resolve(),
+        law=law,
+        seed=int(data.get("seed", 0)),
+        frame_interval_s=check.positive(data.get("frame_interval_s", 0.5), "frame_interval_s"),
+        camera=CameraSpec(
+            width=int(camera.get("width", 640)),
+            height=int(camera.get("height", 480)),
+            # the D415's colour camera: 69 x 42 degrees
+            horizontal_fov_deg=check.positive(
+                camera.get("horizontal_fov_deg", 69.0), "camera.horizontal_fov_deg"
+            ),
+            position_mm=check.vector(camera.get("position_mm", [0, 0, 580]), "camera.position_mm"),
+            look_at_mm=check.vector(camera.get("look_at_mm", [0, 0, 40]), "camera.look_at_mm"),
+            up_hint=check.vector(camera.get("up_hint", [0, 1, 0]), "camera.up_hint"),
+            noise=bool(camera.get("noise", True)),
+        ),
+        scene=SceneSpec(
+            table_z_mm=check.number(scene.get("table_z_mm", -37.5), "scene.table_z_mm"),
+            robot_rgb=check.rgb(scene.get("robot_rgb", [40, 90, 210]), "scene.robot_rgb"),
+            probe_rgb=check.rgb(scene.get("probe_rgb", [220, 50, 40]), "scene.probe_rgb"),
+            weight_rgb=check.rgb(scene.get("weight_rgb", [230, 190, 40]), "scene.weight_rgb"),
+            table_rgb=check.rgb(scene.get("table_rgb", [150, 118, 84]), "scene.table_rgb"),
+        ),
+        publish_markers=bool(markers.get("publish", False)),
+        marker_sigma_mm=check.non_negative(markers.get("sigma_mm", 0.0), "markers.sigma_mm"),
+        frames=tuple(_frame(frame, i, check) for i, frame in enumerate(frames)),
+    )
+
+
+def _frame(frame: dict[str, Any], index: int, check: _Checker) -> FrameSpec:
+    label = f"frame[{index}]"
+    check.keys(frame, "frame", label)
+    actuation = frame.get("actuation", [])
+    if not isinstance(actuation, list):
+        raise ScenarioError(f"{check.source}: {label}.actuation must be a list of numbers")
+    repeat = frame.get("repeat", 1)
+    if not isinstance(repeat, int) or repeat < 1:
+        raise ScenarioError(f"{check.source}: {label}.repeat must be a positive integer")
+    loads = []
+    for j, load in enumerate(frame.get("load", [])):
+        where = f"{label}.load[{j}]"
+        check.keys(load, "load", where)
+        kind = load.get("kind")
+        if kind not in LOAD_KINDS:
+            raise ScenarioError(f"{check.source}: {where}.kind must be one of {LOAD_KINDS}")
+        if ("force_n" in load) == ("mass_g" in load):
+            raise ScenarioError(f"{check.source}: {where} needs exactly one of force_n, mass_g")
+        force = (
+            check.positive(load["force_n"], f"{where}.force_n")
+            if "force_n" in load
+            else check.positive(load["mass_g"], f"{where}.mass_g") * GRAVITY_N_PER_G
+        )
+        direction = load.get("direction")
+        if kind == "weight":
+            direction = (0.0, 0.0, -1.0)
+        elif direction is not None:
+            vector = np.array(check.vector(direction, f"{where}.direction"))
+            if np.linalg.norm(vector) == 0:
+                raise ScenarioError(f"{check.source}: {where}.direction is zero")
+            direction = tuple(vector / np.linalg.norm(vector))
+        loads.append(
+            LoadSpec(
+                kind, check.vector(load.get("point_mm"), f"{where}.point_mm"), force, direction
+            )
+        )
+    return FrameSpec(
+        tuple(check.number(v, f"{label}.actuation") for v in actuation), tuple(loads), repeat
+    )
+
+
+@dataclass(frozen=True)
+class _Checker:
+    source: Path
+
+    def keys(self, table: Any, kind: str, label: str) -> None:
+        if not isinstance(table, dict):
+            raise ScenarioError(f"{self.source}: {label} must be a table")
+        unknown = sorted(set(table) - _KEYS[kind])
+        if unknown:
+            raise ScenarioError(
+                f"{self.source}: unknown key {unknown[0]!r} in {label}; "
+                f"expected one of {', '.join(sorted(_KEYS[kind]))}"
+            )
+
+    def number(self, value: Any, key: str) -> float:
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, int | float)
+            or not math.isfinite(value)
+        ):
+            raise ScenarioError(f"{self.source}: {key} must be a finite number, got {value!r}")
+        return float(value)
+
+    def positive(self, value: Any, key: str) -> float:
+        number = self.number(value, key)
+        if number <= 0:
+            raise ScenarioError(f"{self.source}: {key} must be positive, got {number:g}")
+        return number
+
+    def non_negative(self, value: Any, key: str) -> float:
+        number = self.number(value, key)
+        if number < 0:
+            raise ScenarioError(f"{self.source}: {key} must be >= 0, got {number:g}")
+        return number
+
+    def vector(self, value: Any, key: str) -> tuple[float, float, float]:
+        if not isinstance(value, list) or len(value) != 3:
+            raise ScenarioError(f"{self.source}: {key} must be 3 numbers, got {value!r}")
+        return tuple(self.number(v, key) for v in value)  # type: ignore[return-value]
+
+    def rgb(self, value: Any, key: str) -> tuple[int, int, int]:
+        if (
+            not isinstance(value, list)
+            or len(value) != 3
+            or not all(isinstance(v, int) and 0 <= v <= 255 for v in value)
+        ):
+            raise ScenarioError(f"{self.source}: {key} must be 3 integers in 0..255")
+        return tuple(value)  # type: ignore[return-value]

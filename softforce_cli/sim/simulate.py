@@ -1,0 +1,298 @@
+"""A scenario -> a synthetic recording (MCAP) and its ground truth (`<name>.truth.json`).
+
+For each state of the scenario the truth robot is solved, its deformed surface and the probes
+and weights are ray cast by a virtual D415 above the robot, and the frame is written with its
+actuation (and optional noisy marker observations). The ground truth never enters the
+recording (DESIGN.md section 5).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from softforce_cli import __version__
+from softforce_cli.camera.frame import Actuation, Markers, RgbdFrame
+from softforce_cli.camera.intrinsics import CameraIntrinsics
+from softforce_cli.errors import ScenarioError
+from softforce_cli.io.atomic import atomic_write_text, check_writable
+from softforce_cli.io.mcap_writer import write_recording
+from softforce_cli.model.robot import Robot
+from softforce_cli.sim.camera_pose import invert_pose, look_at, transform_points
+from softforce_cli.sim.depth_noise import apply_d415
+from softforce_cli.sim.ground_truth import TruthState, solve_frame, truth_robot
+from softforce_cli.sim.props import probe_surface, weight_surface
+from softforce_cli.sim.render import RenderedView, SceneSurface, render, table_surface
+from softforce_cli.sim.scenario import Scenario, load_scenario
+
+# The table is a square this big around the robot, large enough to fill the D415's view.
+TABLE_HALF_SIZE_MM = 600.0
+Progress = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    recording: Path
+    truth: Path
+    frames: int
+    interrupted: bool
+
+
+def truth_path_for(recording: Path) -> Path:
+    """rec.mcap -> rec.truth.json, beside it."""
+    return recording.with_name(recording.stem + ".truth.json")
+
+
+@dataclass(frozen=True)
+class Simulation:
+    """A validated scenario, ready to run: its truth robot loaded, its outputs writable."""
+
+    scenario: Scenario
+    robot: Robot
+    intrinsics: CameraIntrinsics
+    world_from_cam: np.ndarray
+    recording: Path
+    truth: Path
+    force: bool
+
+
+def prepare_simulation(scenario_path: Path, output: Path, force: bool = False) -> Simulation:
+    """Check the scenario, its truth robot and the outputs before any work is done."""
+    scenario = load_scenario(scenario_path)
+    output = Path(output)
+    truth_file = truth_path_for(output)
+    check_writable(output, force)
+    check_writable(truth_file, force)
+    robot = truth_robot(scenario)
+    if len({spec.control for spec in robot.cable_specs}) > 1:
+        raise ScenarioError(
+            f"{robot.config.source}: the recording's actuation topic has one control mode; "
+            "cables mixing displacement and force are not supported"
+        )
+    for index, frame in enumerate(scenario.frames):
+        if len(frame.actuation) != len(robot.cable_specs):
+            raise ScenarioError(
+                f"{scenario.source}: frame[{index}] gives {len(frame.actuation)} actuation "
+                f"values for the {len(robot.cable_specs)} cables of {robot.config.source}"
+            )
+    camera = scenario.camera
+    return Simulation(
+        scenario=scenario,
+        robot=robot,
+        intrinsics=CameraIntrinsics.from_fov(
+            camera.width, camera.height, camera.horizontal_fov_deg
+        ),
+        world_from_cam=look_at(
+            np.array(camera.position_mm), np.array(camera.look_at_mm), np.array(camera.up_hint)
+        ),
+        recording=output,
+        truth=truth_file,
+        force=force,
+    )
+
+
+def run_simulation(simulation: Simulation, progress: Progress | None = None) -> SimulationResult:
+    """Solve, render and write every frame, then the truth file. Ctrl-C keeps what is done."""
+    truth_frames: list[dict] = []
+    frames = _frames(
+        simulation.scenario,
+        simulation.robot,
+        simulation.intrinsics,
+        simulation.world_from_cam,
+        truth_frames,
+        progress,
+    )
+    result = write_recording(
+        frames,
+        simulation.recording,
+        force=simulation.force,
+        stop_on_interrupt=True,
+        metadata={"scenario": simulation.scenario.source.name},
+    )
+    document = _truth_document(
+        simulation.scenario,
+        simulation.robot,
+        simulation.intrinsics,
+        simulation.world_from_cam,
+        truth_frames[: result.frames],
+    )
+    atomic_write_text(simulation.truth, json.dumps(document, indent=1), force=simulation.force)
+    return SimulationResult(
+        simulation.recording, simulation.truth, result.frames, result.interrupted
+    )
+
+
+def simulate(
+    scenario_path: Path, output: Path, force: bool = False, progress: Progress | None = None
+) -> SimulationResult:
+    """prepare_simulation, then run_simulation."""
+    return run_simulation(prepare_simulation(scenario_path, output, force), progress)
+
+
+def _frames(
+    scenario: Scenario,
+    robot: Robot,
+    intrinsics: CameraIntrinsics,
+    world_from_cam: np.ndarray,
+    truth_frames: list[dict],
+    progress: Progress | None,
+) -> Iterator[RgbdFrame]:
+    rng = np.random.default_rng(scenario.seed)
+    cam_from_world = invert_pose(world_from_cam)
+    names = tuple(spec.name for spec in robot.cable_specs)
+    control = robot.cable_specs[0].control if names else "displacement"
+    state: TruthState | None = None
+    index = 0
+    for frame in scenario.frames:
+        state = solve_frame(robot, frame, None if state is None else state.equilibrium)
+        view = render(_scene(scenario, robot, state), intrinsics, world_from_cam)
+        markers_robot = robot.marker_points.positions(state.equilibrium.positions_mm)
+        markers_cam = (
+            transform_points(cam_from_world, markers_robot) if len(markers_robot) else markers_robot
+        )
+        for _ in range(frame.repeat):
+            depth, color = _sensor(view, intrinsics, rng, scenario.camera.noise)
+            observed = markers_cam + scenario.marker_sigma_mm * rng.standard_normal(
+                markers_cam.shape
+            )
+            time_ns = round(index * scenario.frame_interval_s * 1e9)
+            yield RgbdFrame(
+                time_ns=time_ns,
+                color=color,
+                depth_mm=depth,
+                intrinsics=intrinsics,
+                actuation=Actuation(names, control, np.array(frame.actuation, dtype=float)),
+                markers=Markers(robot.marker_ids, observed) if scenario.publish_markers else None,
+            )
+            truth_frames.append(
+                _truth_frame(
+                    index,
+                    time_ns,
+                    robot,
+                    frame.actuation,
+                    state,
+                    markers_robot,
+                    markers_cam,
+                    observed,
+                )
+            )
+            index += 1
+            if progress is not None:
+                progress(index, scenario.frame_count)
+
+
+def _scene(scenario: Scenario, robot: Robot, state: TruthState) -> list[SceneSurface]:
+    colours = scenario.scene
+    surfaces = [
+        SceneSurface(
+            "robot",
+            state.equilibrium.positions_mm,
+            robot.mesh.surface_faces,
+            np.array(colours.robot_rgb),
+            smooth=True,
+        ),
+        table_surface(colours.table_z_mm, TABLE_HALF_SIZE_MM, np.array(colours.table_rgb)),
+    ]
+    for i, contact in enumerate(state.contacts):
+        if contact.kind == "probe":
+            surfaces.append(
+                probe_surface(contact.point_mm, contact.force_n, colours.probe_rgb, f"probe{i}")
+            )
+        else:
+            surfaces.append(weight_surface(contact.point_mm, colours.weight_rgb, f"weight{i}"))
+    return surfaces
+
+
+def _sensor(
+    view: RenderedView, intrinsics: CameraIntrinsics, rng: np.random.Generator, noise: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    if noise:
+        return apply_d415(view, intrinsics, rng)
+    return np.rint(view.depth_mm).astype(np.uint16), view.color
+
+
+def _rounded(array: np.ndarray, digits: int = 5) -> list:
+    return np.round(np.asarray(array, dtype=float), digits).tolist()
+
+
+def _truth_frame(
+    index: int,
+    time_ns: int,
+    robot: Robot,
+    actuation: tuple[float, ...],
+    state: TruthState,
+    markers_robot: np.ndarray,
+    markers_cam: np.ndarray,
+    observed: np.ndarray,
+) -> dict:
+    equilibrium = state.equilibrium
+    return {
+        "index": index,
+        "log_time_ns": time_ns,
+        "time_s": time_ns * 1e-9,
+        "actuation": {
+            "names": [c.name for c in robot.cable_specs],
+            "control": [c.control for c in robot.cable_specs],
+            "values": list(actuation),
+        },
+        "cable_tensions_n": _rounded(equilibrium.cable_tensions_n, 7),
+        "cable_displacements_mm": _rounded(equilibrium.cable_shortenings_mm),
+        "contacts": [
+            {
+                "kind": c.kind,
+                "point_mm": _rounded(c.point_mm),
+                "rest_point_mm": _rounded(c.rest_point_mm),
+                "force_n": _rounded(c.force_n, 7),
+                "magnitude_n": round(float(np.linalg.norm(c.force_n)), 7),
+                "normal": _rounded(c.normal),
+            }
+            for c in state.contacts
+        ],
+        "markers": {
+            marker_id: {
+                "robot_mm": _rounded(markers_robot[i]),
+                "camera_mm": _rounded(markers_cam[i]),
+                "observed_camera_mm": _rounded(observed[i]),
+            }
+            for i, marker_id in enumerate(robot.marker_ids)
+        },
+    }
+
+
+def _truth_document(
+    scenario: Scenario,
+    robot: Robot,
+    intrinsics: CameraIntrinsics,
+    world_from_cam: np.ndarray,
+    frames: list[dict],
+) -> dict:
+    return {
+        "softforce_version": __version__,
+        "scenario": scenario.source.name,
+        "truth_model": {
+            "robot": scenario.robot.name,
+            "law": robot.material.law,
+            "tetrahedra": robot.mesh.tet_count,
+            "nodes": robot.mesh.node_count,
+        },
+        "camera": {
+            "intrinsics": {
+                "width": intrinsics.width,
+                "height": intrinsics.height,
+                "fx": intrinsics.fx,
+                "fy": intrinsics.fy,
+                "cx": intrinsics.cx,
+                "cy": intrinsics.cy,
+            },
+            # p_robot = R p_cam + T, the transform calibration estimates (DESIGN.md section 3)
+            "rotation": _rounded(world_from_cam[:3, :3], 12),
+            "translation_mm": _rounded(world_from_cam[:3, 3], 9),
+            "noise": scenario.camera.noise,
+            "marker_sigma_mm": scenario.marker_sigma_mm,
+        },
+        "frames": frames,
+    }

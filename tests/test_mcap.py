@@ -1,0 +1,432 @@
+"""MCAP recordings: round trips, summary, interruption safety, truncation, bad input, CLI info."""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+from mcap.reader import make_reader
+from mcap.writer import Writer as McapWriter
+from mcap_protobuf.decoder import DecoderFactory
+from mcap_protobuf.schema import register_schema
+from typer.testing import CliRunner
+
+from softforce_cli import __version__
+from softforce_cli.camera.frame import Actuation, Markers, RgbdFrame
+from softforce_cli.camera.intrinsics import CameraIntrinsics
+from softforce_cli.cli import record_commands
+from softforce_cli.errors import OutputExistsError, RecordingError
+from softforce_cli.io import recording_format as fmt
+from softforce_cli.io.mcap_reader import RecordingWarning, iter_frames, read_summary
+from softforce_cli.io.mcap_writer import RecordingWriter, write_recording
+
+INTRINSICS = CameraIntrinsics(width=64, height=48, fx=60.25, fy=61.5, cx=31.75, cy=23.25)
+T0_NS = 1_700_000_000_123_456_789  # a unix time, to check nanosecond precision survives
+PERIOD_NS = 33_333_333
+
+
+def make_frames(n: int, seed: int = 0, *, with_extras: bool = True) -> list[RgbdFrame]:
+    rng = np.random.default_rng(seed)
+    frames = []
+    for i in range(n):
+        actuation = Actuation(("north", "east"), "displacement", np.array([0.5 * i, 1.25]))
+        markers = Markers(("apex", "tip"), rng.normal(0.0, 100.0, (2, 3)))
+        frames.append(
+            RgbdFrame(
+                time_ns=T0_NS + i * PERIOD_NS,
+                color=rng.integers(0, 256, (48, 64, 3), dtype=np.uint8),
+                depth_mm=rng.integers(0, 65536, (48, 64), dtype=np.uint16),
+                intrinsics=INTRINSICS,
+                actuation=actuation if with_extras else None,
+                markers=markers if with_extras else None,
+            )
+        )
+    return frames
+
+
+def assert_same_frame(got: RgbdFrame, want: RgbdFrame) -> None:
+    assert got.time_ns == want.time_ns
+    np.testing.assert_array_equal(got.color, want.color)
+    np.testing.assert_array_equal(got.depth_mm, want.depth_mm)
+    assert got.color.dtype == np.uint8 and got.depth_mm.dtype == np.uint16
+    assert got.intrinsics == want.intrinsics
+    if want.actuation is None:
+        assert got.actuation is None
+    else:
+        assert got.actuation.names == want.actuation.names
+        assert got.actuation.control == want.actuation.control
+        np.testing.assert_array_equal(got.actuation.values, want.actuation.values)
+    if want.markers is None:
+        assert got.markers is None
+    else:
+        assert got.markers.ids == want.markers.ids
+        np.testing.assert_array_equal(got.markers.positions_mm, want.markers.positions_mm)
+
+
+def raise_after(frames: list[RgbdFrame], n: int, error: BaseException):
+    yield from frames[:n]
+    raise error
+
+
+@pytest.fixture
+def recording(tmp_path: Path) -> tuple[Path, list[RgbdFrame]]:
+    frames = make_frames(12)
+    path = tmp_path / "rec.mcap"
+    write_recording(frames, path, metadata={"scenario": "press.toml"})
+    return path, frames
+
+
+def test_round_trip_is_exact(recording):
+    path, frames = recording
+    got = list(iter_frames(path))
+    assert len(got) == len(frames)
+    for g, w in zip(got, frames, strict=True):
+        assert_same_frame(g, w)
+
+
+def test_frames_without_extras_have_no_optional_topics(tmp_path):
+    frames = make_frames(3, with_extras=False)
+    write_recording(frames, tmp_path / "plain.mcap")
+    for g, w in zip(iter_frames(tmp_path / "plain.mcap"), frames, strict=True):
+        assert_same_frame(g, w)
+    topics = {t.topic for t in read_summary(tmp_path / "plain.mcap").topics}
+    assert topics == set(fmt.REQUIRED_TOPICS)
+
+
+def test_summary_from_index(recording):
+    path, _ = recording
+    summary = read_summary(path)
+    assert summary.indexed
+    assert summary.frame_count == 12
+    assert summary.start_time_ns == T0_NS
+    assert summary.end_time_ns == T0_NS + 11 * PERIOD_NS
+    assert summary.duration_s == pytest.approx(11 * PERIOD_NS * 1e-9, abs=1e-12)
+    assert summary.frame_rate_hz == pytest.approx(1e9 / PERIOD_NS)
+    assert summary.intrinsics == INTRINSICS
+    assert summary.metadata["softforce"] == {
+        "softforce_version": __version__,
+        "scenario": "press.toml",
+    }
+    assert summary.actuation_names == ("north", "east")
+    assert summary.actuation_control == "displacement"
+    assert summary.marker_ids == ("apex", "tip")
+    counts = {t.topic: t.message_count for t in summary.topics}
+    assert counts == dict.fromkeys(fmt.FRAME_TOPICS, 12)
+    schemas = {t.topic: t.schema for t in summary.topics}
+    assert schemas[fmt.COLOR_TOPIC] == schemas[fmt.DEPTH_TOPIC] == "foxglove.RawImage"
+    assert schemas[fmt.CAMERA_INFO_TOPIC] == "foxglove.CameraCalibration"
+    document = summary.to_dict()
+    assert json.loads(json.dumps(document)) == document
+    assert document["resolution"] == {"width": 64, "height": 48}
+
+
+def test_file_is_foxglove_compatible(recording):
+    """Decode with mcap-protobuf's own decoder (not ours): the layout Foxglove expects."""
+    path, frames = recording
+    with open(path, "rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        assert summary.statistics.chunk_count == len(frames)  # one chunk per frame: lazy reads
+        header = reader.get_header()
+        assert header.library.startswith("softforce/")
+        seen = {}
+        for schema, channel, message, decoded in reader.iter_decoded_messages(
+            topics=list(fmt.REQUIRED_TOPICS)
+        ):
+            seen.setdefault(channel.topic, (schema, message, decoded))
+    _, message, color = seen[fmt.COLOR_TOPIC]
+    assert (color.encoding, color.width, color.height, color.step) == ("rgb8", 64, 48, 192)
+    assert color.frame_id == "camera_color_optical_frame"
+    assert color.timestamp.ToNanoseconds() == message.log_time == T0_NS
+    np.testing.assert_array_equal(
+        np.frombuffer(color.data, np.uint8).reshape(48, 64, 3), frames[0].color
+    )
+    _, _, depth = seen[fmt.DEPTH_TOPIC]
+    assert (depth.encoding, depth.step) == ("16UC1", 128)
+    np.testing.assert_array_equal(
+        np.frombuffer(depth.data, "<u2").reshape(48, 64), frames[0].depth_mm
+    )
+    _, _, info = seen[fmt.CAMERA_INFO_TOPIC]
+    k = INTRINSICS
+    assert list(info.K) == [k.fx, 0, k.cx, 0, k.fy, k.cy, 0, 0, 1]
+    assert list(info.P) == [k.fx, 0, k.cx, 0, 0, k.fy, k.cy, 0, 0, 0, 1, 0]
+    assert (info.distortion_model, list(info.D)) == ("plumb_bob", [0.0] * 5)
+    assert (info.width, info.height, info.frame_id) == (64, 48, "camera_color_optical_frame")
+    with open(path, "rb") as stream:
+        summary = make_reader(stream).get_summary()
+    for channel in summary.channels.values():
+        if channel.topic in (fmt.ACTUATION_TOPIC, fmt.MARKERS_TOPIC):
+            assert channel.message_encoding == "json"
+            assert summary.schemas[channel.schema_id].encoding == "jsonschema"
+
+
+def test_messages_of_a_frame_share_log_time(recording):
+    path, frames = recording
+    with open(path, "rb") as stream:
+        times = {}
+        for _, channel, message in make_reader(stream).iter_messages():
+            times.setdefault(message.log_time, set()).add(channel.topic)
+    assert sorted(times) == [f.time_ns for f in frames]
+    assert all(topics == set(fmt.FRAME_TOPICS) for topics in times.values())
+
+
+def test_iteration_is_lazy_and_can_stop_early(recording):
+    path, frames = recording
+    iterator = iter_frames(path)
+    assert_same_frame(next(iterator), frames[0])
+    assert_same_frame(next(iterator), frames[1])
+    iterator.close()  # closes the file; no warning, no error
+
+
+def test_interrupted_recording_keeps_its_frames(tmp_path):
+    frames = make_frames(8)
+    path = tmp_path / "cut.mcap"
+    with pytest.raises(KeyboardInterrupt):
+        write_recording(raise_after(frames, 5, KeyboardInterrupt()), path)
+    summary = read_summary(path)
+    assert summary.indexed and summary.frame_count == 5
+    for g, w in zip(iter_frames(path), frames[:5], strict=True):
+        assert_same_frame(g, w)
+    assert [p.name for p in tmp_path.iterdir()] == ["cut.mcap"]  # no temporary file left
+
+
+def test_stop_on_interrupt_reports_it(tmp_path):
+    frames = make_frames(6)
+    result = write_recording(
+        raise_after(frames, 4, KeyboardInterrupt()), tmp_path / "r.mcap", stop_on_interrupt=True
+    )
+    assert (result.frames, result.interrupted) == (4, True)
+    assert read_summary(tmp_path / "r.mcap").frame_count == 4
+
+
+def test_camera_failure_keeps_frames_and_propagates(tmp_path):
+    frames = make_frames(6)
+    with pytest.raises(RuntimeError, match="camera unplugged"):
+        write_recording(
+            raise_after(frames, 3, RuntimeError("camera unplugged")), tmp_path / "r.mcap"
+        )
+    assert len(list(iter_frames(tmp_path / "r.mcap"))) == 3
+
+
+def test_interruption_before_any_frame_leaves_existing_file(tmp_path):
+    path = tmp_path / "old.mcap"
+    path.write_bytes(b"previous recording")
+    result = write_recording(
+        raise_after([], 0, KeyboardInterrupt()), path, force=True, stop_on_interrupt=True
+    )
+    assert (result.frames, result.interrupted) == (0, True)
+    assert path.read_bytes() == b"previous recording"
+    assert [p.name for p in tmp_path.iterdir()] == ["old.mcap"]
+
+
+def test_interruption_inside_a_frame_drops_only_that_frame(tmp_path):
+    """Ctrl-C between two messages of frame 4: frames 0-3 stay whole, frame 4 is skipped."""
+    frames = make_frames(6)
+    path = tmp_path / "mid.mcap"
+    with pytest.raises(KeyboardInterrupt), RecordingWriter(path) as writer:
+        for frame in frames[:4]:
+            writer.write_frame(frame)
+        add_message = writer._writer.add_message
+        calls = []
+
+        def interrupted_add(**kwargs):
+            calls.append(kwargs)
+            if len(calls) == 3:  # actuation, markers written; camera_info interrupted
+                raise KeyboardInterrupt
+            add_message(**kwargs)
+
+        writer._writer.add_message = interrupted_add
+        writer.write_frame(frames[4])
+    assert read_summary(path).frame_count == 4
+    with pytest.warns(RecordingWarning, match="skipped 1 incomplete"):
+        got = list(iter_frames(path))
+    for g, w in zip(got, frames[:4], strict=True):
+        assert_same_frame(g, w)
+
+
+def test_truncated_file_yields_its_readable_frames(recording, tmp_path):
+    path, frames = recording
+    data = path.read_bytes()
+    cut = tmp_path / "half.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = list(iter_frames(cut))
+    messages = [str(w.message) for w in caught]
+    assert len(messages) == 2
+    assert "has no index" in messages[0] and "damaged or truncated" in messages[1]
+    assert 3 <= len(got) < len(frames)  # each frame is ~15 kB, so about half survive
+    for g, w in zip(got, frames, strict=False):
+        assert_same_frame(g, w)
+    with warnings.catch_warnings(record=True):
+        warnings.simplefilter("always")
+        summary = read_summary(cut)
+    assert not summary.indexed and summary.frame_count == len(got)
+    assert summary.metadata["softforce"]["scenario"] == "press.toml"
+
+    no_footer = tmp_path / "no_footer.mcap"
+    no_footer.write_bytes(data[:-20])  # only the footer is lost: every frame survives
+    with pytest.warns(RecordingWarning):
+        assert len(list(iter_frames(no_footer))) == len(frames)
+
+
+def test_file_cut_before_first_frame_is_an_error(recording, tmp_path):
+    path, _ = recording
+    cut = tmp_path / "stub.mcap"
+    cut.write_bytes(path.read_bytes()[:100])
+    with pytest.warns(RecordingWarning), pytest.raises(RecordingError, match="has no"):
+        list(iter_frames(cut))
+
+
+def write_custom(
+    path: Path,
+    frames: list[RgbdFrame],
+    *,
+    topics=fmt.FRAME_TOPICS,
+    extra=True,
+    depth_size=None,
+    color_schema=RawImage,
+    color_encoding="rgb8",
+) -> None:
+    """A recording written with the bare mcap writer: extra topics, missing or odd ones."""
+    with open(path, "wb") as stream:
+        writer = McapWriter(stream)
+        writer.start()
+        image_schema = register_schema(writer, RawImage)
+        info_schema = register_schema(writer, CameraCalibration)
+        color_schema_id = register_schema(writer, color_schema)
+        ids = {}
+        for topic in topics:
+            schema = {fmt.COLOR_TOPIC: color_schema_id, fmt.CAMERA_INFO_TOPIC: info_schema}.get(
+                topic, image_schema
+            )
+            if topic in (fmt.ACTUATION_TOPIC, fmt.MARKERS_TOPIC):
+                ids[topic] = writer.register_channel(topic, "json", 0)
+            else:
+                ids[topic] = writer.register_channel(topic, "protobuf", schema)
+        tf = writer.register_channel("/tf", "json", 0)
+        for frame in frames:
+            t = frame.time_ns
+            depth = frame.depth_mm if depth_size is None else np.zeros(depth_size, np.uint16)
+            color = fmt.encode_color(frame.color, t)
+            if color_encoding != "rgb8":
+                message = RawImage.FromString(color)
+                message.encoding = color_encoding
+                color = message.SerializeToString()
+            if color_schema is CompressedImage:
+                color = CompressedImage(format="jpeg", data=b"\xff\xd8").SerializeToString()
+            data = {
+                fmt.COLOR_TOPIC: color,
+                fmt.DEPTH_TOPIC: fmt.encode_depth(depth, t),
+                fmt.CAMERA_INFO_TOPIC: fmt.encode_camera_info(frame.intrinsics, t),
+                fmt.ACTUATION_TOPIC: fmt.encode_actuation(frame.actuation),
+                fmt.MARKERS_TOPIC: fmt.encode_markers(frame.markers),
+            }
+            if extra:
+                writer.add_message(tf, t - 1000, b'{"x": 1}', t - 1000)
+            for topic in topics:
+                writer.add_message(ids[topic], t, data[topic], t)
+            if extra:
+                writer.add_message(tf, t, b'{"x": 2}', t)
+        writer.finish()
+
+
+def test_extra_topics_are_ignored(tmp_path):
+    frames = make_frames(4)
+    path = tmp_path / "extra.mcap"
+    write_custom(path, frames)
+    got = list(iter_frames(path))
+    for g, w in zip(got, frames, strict=True):
+        assert_same_frame(g, w)
+    summary = read_summary(path)
+    assert summary.frame_count == 4
+    assert {t.topic: t.message_count for t in summary.topics}["/tf"] == 8
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"topics": (fmt.COLOR_TOPIC, fmt.CAMERA_INFO_TOPIC)}, "has no /camera/aligned_depth"),
+        ({"topics": (fmt.COLOR_TOPIC, fmt.DEPTH_TOPIC)}, "has no /camera/color/camera_info"),
+        ({"topics": (fmt.DEPTH_TOPIC, fmt.CAMERA_INFO_TOPIC)}, "has no /camera/color/image_raw"),
+        ({"depth_size": (24, 32)}, "depth is 32x24 but colour is 64x48"),
+        ({"color_schema": CompressedImage}, "holds foxglove.CompressedImage"),
+        ({"color_encoding": "bgr8"}, "encoding 'bgr8'; softforce reads 'rgb8'"),
+    ],
+)
+def test_bad_recordings_are_rejected(tmp_path, kwargs, message):
+    path = tmp_path / "bad.mcap"
+    write_custom(path, make_frames(2), **kwargs)
+    with pytest.raises(RecordingError, match=message):
+        list(iter_frames(path))
+    if "depth_size" not in kwargs and "color_encoding" not in kwargs:
+        with pytest.raises(RecordingError, match=message):
+            read_summary(path)
+
+
+def test_missing_and_non_mcap_files(tmp_path):
+    with pytest.raises(RecordingError, match="does not exist"):
+        list(iter_frames(tmp_path / "nothing.mcap"))
+    text = tmp_path / "notes.mcap"
+    text.write_text("not a recording\n")
+    with pytest.raises(RecordingError, match="is not an MCAP file"):
+        read_summary(text)
+    with pytest.raises(RecordingError, match="is a directory"):
+        read_summary(tmp_path)
+
+
+def test_writer_refuses_to_overwrite_and_bad_frames(tmp_path):
+    path = tmp_path / "keep.mcap"
+    path.write_bytes(b"keep me")
+    with pytest.raises(OutputExistsError, match="--force"):
+        RecordingWriter(path)
+    assert path.read_bytes() == b"keep me"
+    frames = make_frames(2)
+    with pytest.raises(RecordingError, match="does not come after"):
+        write_recording([frames[1], frames[0]], tmp_path / "order.mcap")
+    bad = RgbdFrame(0, frames[0].color, frames[0].depth_mm.astype(np.float32), INTRINSICS)
+    with pytest.raises(ValueError, match="uint16"):
+        write_recording([bad], tmp_path / "dtype.mcap")
+    assert not (tmp_path / "dtype.mcap").exists()
+
+
+def test_cli_info_json_and_text(recording):
+    path, _ = recording
+    runner = CliRunner()
+    result = runner.invoke(record_commands.app, ["info", str(path), "--json"])
+    assert result.exit_code == 0, result.output
+    document = json.loads(result.stdout)  # exactly one JSON document on stdout
+    assert document["frames"] == 12
+    assert document["resolution"] == {"width": 64, "height": 48}
+    assert document["intrinsics"] == {"fx": 60.25, "fy": 61.5, "cx": 31.75, "cy": 23.25}
+    assert document["metadata"]["softforce"]["scenario"] == "press.toml"
+    text = runner.invoke(record_commands.app, ["info", str(path)])
+    assert text.exit_code == 0
+    assert "64x48" in text.stdout and "fx 60.250" in text.stdout
+
+
+def test_cli_info_on_truncated_file_warns_on_stderr_only(recording, tmp_path):
+    path, _ = recording
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[: len(path.read_bytes()) // 2])
+    result = CliRunner().invoke(record_commands.app, ["info", str(cut), "--json"])
+    assert result.exit_code == 0
+    assert json.loads(result.stdout)["indexed"] is False
+    assert "warning:" in result.stderr
+
+
+def test_warnings_are_warnings_not_prints(recording, tmp_path, capsys):
+    path, _ = recording
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[:-20])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        list(iter_frames(cut))
+    assert caught and all(issubclass(w.category, RecordingWarning) for w in caught)
+    assert capsys.readouterr() == ("", "")

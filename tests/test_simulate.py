@@ -1,0 +1,132 @@
+"""`softforce simulate`: scenarios, ground truth, and the sample recordings staying current."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from softforce_cli.errors import ScenarioError
+from softforce_cli.io.mcap_reader import iter_frames, read_summary
+from softforce_cli.sim.scenario import load_scenario
+from softforce_cli.sim.simulate import simulate
+from tests.cli_runner import assert_one_line_error, softforce
+from tests.conftest import ROOT
+
+SCENARIOS = ROOT / "sample_data" / "scenarios"
+RECORDINGS = ROOT / "sample_data" / "recordings"
+
+
+@pytest.mark.parametrize("name", ["markers", "weights", "probes"])
+def test_sample_recordings_are_reproduced_by_their_scenarios(name, tmp_path):
+    """The committed sample data cannot drift from the code that makes it."""
+    result = simulate(SCENARIOS / f"{name}.toml", tmp_path / f"{name}.mcap")
+    committed = json.loads((RECORDINGS / f"{name}.truth.json").read_text())
+    fresh = json.loads(result.truth.read_text())
+    assert len(fresh["frames"]) == len(committed["frames"]) == result.frames
+    for old, new in zip(committed["frames"], fresh["frames"], strict=True):
+        assert new["actuation"] == old["actuation"]
+        np.testing.assert_allclose(new["cable_tensions_n"], old["cable_tensions_n"], atol=1e-5)
+        for c_old, c_new in zip(old["contacts"], new["contacts"], strict=True):
+            np.testing.assert_allclose(c_new["point_mm"], c_old["point_mm"], atol=1e-3)
+            np.testing.assert_allclose(c_new["force_n"], c_old["force_n"], atol=1e-6)
+    for old, new in zip(
+        iter_frames(RECORDINGS / f"{name}.mcap"), iter_frames(result.recording), strict=True
+    ):
+        assert new.time_ns == old.time_ns
+        # rounding of the depth may flip where the geometry differs in the last bits
+        changed = np.abs(new.depth_mm.astype(int) - old.depth_mm.astype(int))
+        assert np.mean(changed > 1) < 1e-3
+        assert np.mean(np.abs(new.color.astype(int) - old.color.astype(int)) > 2) < 1e-3
+
+
+def test_noise_free_depth_agrees_with_the_truth_geometry(tmp_path):
+    """Project the apex marker (on the top surface) into the image: the depth there is its z."""
+    scenario = SCENARIOS / "markers.toml"
+    text = scenario.read_text().replace("[camera]", "[camera]\nnoise = false")
+    text = text.replace('robot = "../', f'robot = "{SCENARIOS.parent}/')
+    quiet = tmp_path / "quiet.toml"
+    quiet.write_text(text)
+    result = simulate(quiet, tmp_path / "quiet.mcap")
+    truth = json.loads(result.truth.read_text())
+    for frame, recorded in zip(truth["frames"], iter_frames(result.recording), strict=True):
+        x, y, z = frame["markers"]["apex"]["camera_mm"]
+        k = recorded.intrinsics
+        u, v = round(k.fx * x / z + k.cx), round(k.fy * y / z + k.cy)
+        assert abs(int(recorded.depth_mm[v, u]) - z) <= 1.0  # 1 mm quantisation
+        # the robot is blue there (its colour is distinct from the table and the probes)
+        r, g, b = recorded.color[v, u].astype(int)
+        assert b > r + 60 and b > g + 40
+
+
+def test_markers_are_observed_with_the_requested_noise():
+    truth = json.loads((RECORDINGS / "markers.truth.json").read_text())
+    errors = np.array(
+        [
+            np.subtract(m["observed_camera_mm"], m["camera_mm"])
+            for frame in truth["frames"]
+            for m in frame["markers"].values()
+        ]
+    )
+    assert errors.std() == pytest.approx(0.5, rel=0.25)  # scenario: sigma_mm = 0.5
+    frames = list(iter_frames(RECORDINGS / "markers.mcap"))
+    observed = frames[0].markers.positions_mm
+    expected = [m["observed_camera_mm"] for m in truth["frames"][0]["markers"].values()]
+    np.testing.assert_allclose(observed, expected, atol=1e-4)
+
+
+def test_truth_stays_out_of_the_recording():
+    summary = read_summary(RECORDINGS / "probes.mcap")
+    assert summary.metadata["softforce"]["scenario"] == "probes.toml"
+    raw = (RECORDINGS / "probes.mcap").read_bytes()
+    assert b"force_n" not in raw and b"contacts" not in raw
+
+
+def test_weights_make_the_apex_sink_monotonically():
+    truth = json.loads((RECORDINGS / "weights.truth.json").read_text())
+    loaded = [f for f in truth["frames"] if f["contacts"]]
+    heights = [f["contacts"][0]["point_mm"][2] for f in loaded]
+    forces = [f["contacts"][0]["magnitude_n"] for f in loaded]
+    assert forces == pytest.approx([0.26, 0.46, 0.66, 0.76, 0.86, 1.06])  # paper, Table III
+    assert np.all(np.diff(heights) < 0)
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        ('law = "neo-hookean"', 'law = "rubber"', "law 'rubber' unknown"),
+        ("[camera]", "[camera]\nzoom = 2", "unknown key 'zoom' in [camera]"),
+        ('robot = "../diamond_fine/diamond.toml"', 'robot = "../nothere.toml"', "not found"),
+        ("actuation = [0.0, 0.0, 0.0, 0.0]", "actuation = [0.0, 0.0]", "2 actuation values"),
+    ],
+)
+def test_bad_scenarios_give_one_clear_line(tmp_path, old, new, message):
+    text = (SCENARIOS / "markers.toml").read_text()
+    assert old in text
+    text = text.replace(old, new, 1).replace('robot = "../', f'robot = "{SCENARIOS.parent}/')
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    result = softforce("simulate", path, "-o", tmp_path / "bad.mcap")
+    assert_one_line_error(result, message)
+    assert not (tmp_path / "bad.mcap").exists()
+
+
+def test_load_needs_a_force_or_a_mass(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text(
+        'robot = "r.toml"\n[[frame]]\nload = [{kind = "weight", point_mm = [0, 0, 0]}]\n'
+    )
+    with pytest.raises(ScenarioError, match=re.escape("needs exactly one of force_n, mass_g")):
+        load_scenario(path)
+
+
+def test_scenario_defaults_follow_the_design(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text('robot = "r.toml"\n[[frame]]\nrepeat = 3\n')
+    scenario = load_scenario(path)
+    assert scenario.camera.position_mm == (0.0, 0.0, 580.0)  # DESIGN.md: 0.58 m above
+    assert scenario.frame_count == 3
+    assert scenario.robot == Path(tmp_path / "r.toml").resolve()
