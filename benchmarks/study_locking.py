@@ -193,7 +193,7 @@ def plot(results: dict[str, list[dict]], path: Path) -> None:
             if points:
                 ax.loglog(*zip(*points, strict=True), marker=marker, label=element)
         ax.axhline(1.0, color="grey", ls="--", lw=1, label="1 mm target")
-        ax.set(xlabel="free dofs", ylabel="surface RMS vs reference (mm), mean of 5 cases",
+        ax.set(xlabel="free dofs", ylabel="surface RMS vs P2-P0 finest (mm), mean of 5 cases",
                title=f"{name} Diamond")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend()
@@ -287,25 +287,26 @@ text interprets the run recorded in the project's history.
   "2-4 mm" compared P1 with a 34k-tet P1 model, which locks too: against a quadratic
   reference the gap is about twice that.
 - **Quadratic elements on the same coarse mesh cut that to about 1 mm RMS** (6 to 10 times
-  less), under gravity and under each cable, with every law (both options are
-  displacement-based quadratic tetrahedra; mid-edge nodes are appended after the mesh's):
+  less), under gravity and under each cable, with every law. Both options are quadratic
+  10-node tetrahedra built on the input mesh (mid-edge nodes appended after the mesh's):
   `element = "p2"` (full 4-point integration) and `element = "p2-p0"` (the law's lambda
   terms at the centroid: for the linear law the condensed mixed P2 / P0-pressure method;
   for corotational and Neo-Hookean the same split psi = psi_mu + psi_lambda).
 - **The reference has an uncertainty of about 0.3 mm RMS, and the verdict on the 1 mm target
-  depends on it.** P2 and P2-P0 on the finest mesh differ by 0.5-0.6 mm RMS (default robot).
-  They bracket the converged solution: plain P2 still locks mildly at nu = 0.45 and is too
-  stiff, P2-P0 is slightly too soft (cantilever on 40 x 4 x 4 cells: -0.4% and +0.5% of the
-  converged 3D value), so their midpoint is the best estimate. Against it, on the default
-  robot's coarse mesh P2-P0 is at 0.55-1.01 mm RMS and P2 at 0.88-1.06 mm; against the
-  P2-P0 reference alone P2-P0 meets the target (0.43-0.78) and P2 does not (1.14-1.33);
-  against the P2 one, the reverse pattern.
-- **On SOFA's 4k mesh plain P2 is the better choice**: 0.88-0.99 mm RMS from the P2-P0
-  34k reference, while P2-P0 is too soft there (1.5-1.8 mm RMS; apex sag 13.2 mm against
-  12.4 mm), as on a cantilever with a single cell across its section (10 x 1 x 1 cells:
-  13% too soft): the one-point volumetric constraint is too weak on meshes with few
-  elements across a bar. P2 is the conforming, monotonically converging option; P2-P0 is
-  the more accurate one on meshes with a few elements across every bar.
+  depends on it.** P2 and P2-P0 on the finest mesh differ by 0.44-0.59 mm RMS (both robots,
+  all cases). They bracket the converged solution: plain P2 still locks mildly at nu = 0.45
+  and is too stiff, P2-P0 is slightly too soft (cantilever on 40 x 4 x 4 cells: -0.4% and
+  +0.5% of the converged 3D value), so their midpoint is the best estimate, with half their
+  difference as its uncertainty.
+- **`p2` meets the target on both robots' coarse meshes against that best estimate**: 0.88
+  to 1.06 mm RMS on the default robot and 0.66-0.79 mm on SOFA's 4k mesh (worst point 2.6
+  and 2.0 mm). `p2-p0` is more accurate on the default robot (0.55-1.01 mm) but too soft on
+  SOFA's coarser mesh (1.67-1.97 mm; apex sag 13.2 mm against 12.4 mm for the P2-P0
+  reference and 11.7 mm for P2 on 34k tets), as on a cantilever with a single cell across
+  its section (10 x 1 x 1 cells: 13% too soft): the one-point volumetric constraint is too
+  weak on meshes with few elements across a bar. P2 is the conforming, monotonically
+  converging option and the one to choose; P2-P0 is the more accurate one on meshes with a
+  few elements across every bar.
 - **Cantilever** (tests/test_p2.py; 100 x 10 x 10 mm, nu = 0.45, 10 x 2 x 2 cells = 240
   tets, tip load, ratio to Timoshenko): P1 0.236, P2 0.944, P2-P0 0.998; the mesh-converged
   3D value is 0.983 (the clamped face cannot contract sideways). P2 on 20 x 2 x 2 cubic
@@ -313,9 +314,9 @@ text interprets the run recorded in the project's history.
 - **Speed** (below): one FE update with P2 or P2-P0 on the coarse robot costs about 20 times
   P1's (1.3-1.5 Hz instead of 26-31 Hz on this shared 2-core machine), three quarters of it
   the LDL^T factorisation of 26k dofs by qdldl (a non-supernodal LDL^T). **`p1` stays the
-  default** for the real-time sensing loop; choose `p2` (safe on any mesh) or `p2-p0` (on
-  meshes with a few elements across every bar) where accuracy matters more than the frame
-  rate: offline calibration and diagnosis fits, synthetic ground truth. P2-P0 on the 12 mm
+  default** for the real-time sensing loop; choose `p2` (or `p2-p0` on meshes with a few
+  elements across every bar) where accuracy matters more than the frame rate: offline
+  calibration and diagnosis fits, synthetic ground truth. P2-P0 on the 12 mm
   mesh (2.4k tets) is still within 1 mm RMS of the P2-P0 reference (0.64-0.98) at
   2.9-3.5 Hz, far from 50 Hz. A supernodal Cholesky helps but does not close the gap:
   CHOLMOD (measured through cvxopt 1.3.3's bundled SuiteSparse, not a project dependency)
@@ -346,14 +347,14 @@ rest point (attached to the reference mesh with the reference's own shape functi
 tables give the RMS and the maximum over those nodes, and the apex sag under gravity.
 
 **Reference**: P2-P0 on the finest mesh that a few static solves with qdldl afford
-(default robot: gmsh size 4.8 mm, the sample `diamond_fine` mesh, 18k tets, 92k dofs;
-SOFA: its 34k-tet mesh, 176k dofs). How converged it is: its distance to plain P2 on the
-same mesh and to P2-P0 on the next coarser mesh (rows of the tables) is about 0.5 mm RMS.
-P2 converges from the stiff side (locking), so the converged surface is expected beyond the
-reference, away from P2; the convergence of P2-P0 between unstructured meshes is not
-monotonic at this level (mesh-to-mesh asymmetries, amplified under gravity by the
-instability above), so no Richardson extrapolation is claimed. Read the coarse P2-P0 rows as
-"within 1 mm of the best model we can solve, whose own uncertainty is about 0.5 mm RMS".
+(default robot: gmsh size 4.8 mm, the sample `diamond_fine` mesh, 18k tets, 92k free dofs;
+SOFA: its 34k-tet mesh, 164k free dofs; 10 to 45 minutes of solves per model). Plain P2 on
+the same mesh is solved too, and the summary also compares the coarse models with P2 and
+with the midpoint of the two fields (the best estimate, as they bracket the converged
+solution; its uncertainty is about half their 0.44-0.59 mm RMS difference). The P2-P0
+sequence between unstructured meshes is not monotonic at the 0.5 mm level (mesh-to-mesh
+asymmetries, amplified under gravity by the instability above), so no Richardson
+extrapolation is claimed.
 
 ## Results
 
