@@ -8,6 +8,7 @@ points, with the free displacements (paper eq. 3-6).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,8 @@ import numpy as np
 from benchmarks.timing import BenchRow, median_time, peak_memory_mb
 from softforce_cli.fem.attachment import Attachment
 from softforce_cli.fem.compliance import compliance, effector_rows, force_rows, linearize
-from softforce_cli.fem.statics import solve_equilibrium
+from softforce_cli.fem.linear_solver import Factorization
+from softforce_cli.fem.statics import Equilibrium, solve_equilibrium
 from softforce_cli.model.config import load_config
 from softforce_cli.model.mesh_io import read_tet_mesh
 from softforce_cli.model.robot import Robot, build_robot, load_robot
@@ -35,11 +37,9 @@ def robot_with_element(path: Path, element: str) -> Robot:
                                               spec.translation_mm))
 
 
-def update_timing(element: str, repeats: int, robot: Robot | None = None
-                  ) -> tuple[float, float, float, Robot]:
-    """Median seconds of one update, of its K assembly and of its factorisation, on the
-    coarse default robot with `element` (or on `robot`), at the equilibrium for ACTUATION."""
-    robot = robot_with_element(COARSE, element) if robot is None else robot
+def sensing_update(robot: Robot) -> tuple[Callable[[], None], Equilibrium]:
+    """One sensing frame's FE work at the equilibrium for ACTUATION, as a callable: K(x), its
+    factorisation (symbolic analysis reused), W for 51 normal effectors, 4 cables, 2 forces."""
     model = robot.fe_model
     equilibrium = solve_equilibrium(model, robot.cable_inputs(ACTUATION))
     features = Attachment.at_nodes(robot.feature_nodes)
@@ -54,8 +54,20 @@ def update_timing(element: str, repeats: int, robot: Robot | None = None
         state["lin"] = linearize(model, x, tensions, factorization=state["lin"].factorization)
         compliance(state["lin"], effectors, forces)
 
+    return update, equilibrium
+
+
+def update_timing(element: str, repeats: int, robot: Robot | None = None
+                  ) -> tuple[float, float, float, Robot]:
+    """Median seconds of one update, of its K assembly and of its factorisation, on the
+    coarse default robot with `element` (or on `robot`), at the equilibrium for ACTUATION."""
+    robot = robot_with_element(COARSE, element) if robot is None else robot
+    model = robot.fe_model
+    update, equilibrium = sensing_update(robot)
+    update()
+    x = equilibrium.positions_mm
     _, stiffness = model.internal_forces_and_stiffness(x)
-    factor = state["lin"].factorization
+    factor = Factorization(stiffness)
     return (median_time(update, repeats=repeats, warmup=1),
             median_time(lambda: model.internal_forces_and_stiffness(x), repeats=repeats),
             median_time(lambda: factor.refactor(stiffness), repeats=repeats), robot)
@@ -79,18 +91,7 @@ def element_rows(elements: tuple[str, ...] = ("p2", "p2-p0"), repeats: int = 5
 def run() -> list[BenchRow]:
     robot = load_robot(COARSE)
     model = robot.fe_model
-    equilibrium = solve_equilibrium(model, robot.cable_inputs(ACTUATION))
-    features = Attachment.at_nodes(robot.feature_nodes)
-    effectors = effector_rows(features, model.node_count, robot.feature_normals)
-    contacts = np.array([0, len(robot.feature_nodes) // 2])
-    forces = force_rows(features.subset(contacts), robot.feature_normals[contacts],
-                        model.node_count)
-    state = {"lin": linearize(model, equilibrium.positions_mm, equilibrium.cable_tensions_n)}
-
-    def update() -> None:
-        state["lin"] = linearize(model, equilibrium.positions_mm, equilibrium.cable_tensions_n,
-                                 factorization=state["lin"].factorization)
-        compliance(state["lin"], effectors, forces)
+    update, equilibrium = sensing_update(robot)
 
     def assemble() -> None:
         model.internal_forces_and_stiffness(equilibrium.positions_mm)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from softforce_cli.errors import ScenarioError, SolverError
-from softforce_cli.fem.attachment import Attachment, attach_points
+from softforce_cli.fem.attachment import Attachment
 from softforce_cli.fem.statics import Equilibrium, PointLoads, solve_equilibrium
 from softforce_cli.model.config import load_config
 from softforce_cli.model.mesh_io import read_tet_mesh
@@ -80,7 +80,7 @@ def load_points(
         points.append(point)
         forces.append(load.force_n * direction)
         normals.append(normal)
-    attachment = attach_points(mesh.nodes_mm, mesh.tets, np.array(points).reshape(-1, 3))
+    attachment = robot.attach(np.array(points).reshape(-1, 3))
     return attachment, np.array(forces).reshape(-1, 3), np.array(normals).reshape(-1, 3)
 
 
@@ -127,7 +127,7 @@ def solve_frame(robot: Robot, frame: FrameSpec, start: Equilibrium | None) -> Tr
             f"{CONTINUATION_STEPS[-1]} load steps: {last_error}"
         )
     deformed = attachment.positions(state.positions_mm)
-    rest = attachment.positions(robot.mesh.nodes_mm)
+    rest = attachment.positions(robot.rest_nodes_mm)
     contacts = tuple(
         Contact(load.kind, rest[i], deformed[i], forces[i], normals[i])
         for i, load in enumerate(frame.loads)
