@@ -35,3 +35,7 @@ class CalibrationError(SoftforceError):
 
 class OutputExistsError(SoftforceError):
     """An output would overwrite an existing file without --force."""
+
+
+class SensingError(SoftforceError):
+    """Force sensing cannot run on these inputs (no robot in view, no actuation, ...)."""

@@ -1,0 +1,206 @@
+"""Accuracy of `softforce sense` against simulated recordings with an independent truth.
+
+    python benchmarks/study_sensing.py [--quick]     # about 20-40 minutes on 2 cores
+
+The truth is `softforce simulate`'s: the robot of sample_data/diamond_fine (another mesh,
+a locking-free element, Neo-Hookean) seen by the virtual D415 with its noise; the estimator is
+the robot file under test (sample_data/diamond/diamond.toml by default), calibrated from
+markers like a user would (`softforce calibrate`). Writes out/study_sensing/results.json and
+the figures in docs/figures/, which docs/sensing.md quotes.
+
+- Table III (the paper's): weights of 260-1060 mN hung below the apex at a constant cable
+  displacement; Young's modulus calibrated on one weight (660 mN, `calibrate --material`),
+  intensities of the others estimated with the known contact (`--contact-point`).
+- Probes: one and two probes at 12 surface locations of an actuated robot, 0.3-0.6 N, and
+  frames without contact (phantoms).
+- A sweep of feature count (25, 51, 101) on the probes: error and frame rate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from softforce_cli.calibration.material import KnownLoad, fit_young_modulus  # noqa: E402
+from softforce_cli.calibration.material_inputs import load_case  # noqa: E402
+from softforce_cli.calibration.recording_markers import markers_from_recording  # noqa: E402
+from softforce_cli.calibration.result import result_to_json  # noqa: E402
+from softforce_cli.calibration.robust import calibrate_checked  # noqa: E402
+from softforce_cli.estimation.session import run_sensing  # noqa: E402
+from softforce_cli.estimation.setup import SenseInputs, prepare_sensing  # noqa: E402
+from softforce_cli.estimation.truth_errors import compare_with_truth, read_truth  # noqa: E402
+from softforce_cli.model.robot import load_robot  # noqa: E402
+from softforce_cli.sim.simulate import simulate  # noqa: E402
+from softforce_cli.vision.settings import VisionSettings  # noqa: E402
+
+OUT = ROOT / "out" / "study_sensing"
+FIGURES = ROOT / "docs" / "figures"
+TRUTH_ROBOT = ROOT / "sample_data" / "diamond_fine" / "diamond.toml"
+ESTIMATOR = ROOT / "sample_data" / "diamond" / "diamond.toml"
+WEIGHTS_N = (0.26, 0.46, 0.66, 0.76, 0.86, 1.06)
+CALIBRATION_WEIGHT_N = 0.66
+APEX_LOAD_POINT = (0.0, 0.0, 110.0)
+HOLD_FRAMES = 3
+
+
+def _camera(width: int, height: int) -> str:
+    return f"[camera]\nwidth = {width}\nheight = {height}\n"
+
+
+def _header(name: str, seed: int) -> str:
+    return (f'name = "{name}"\nrobot = "{TRUTH_ROBOT}"\nlaw = "neo-hookean"\nseed = {seed}\n'
+            "frame_interval_s = 0.0333\n")
+
+
+def markers_scenario() -> str:
+    # the longest static stretch (what `calibrate --recording` averages) is the first hold
+    frames = "\n[[frame]]\nactuation = [3.0, 3.0, 3.0, 3.0]\nrepeat = 3\n" + "".join(
+        f"\n[[frame]]\nactuation = {list(a)}\n" for a in
+        ([4.0] * 4, [8.0, 0, 0, 0], [0, 6.0, 0, 6.0], [5.0, 0.0, 5.0, 0.0]))
+    return _header("markers", 11) + _camera(424, 240) + \
+        "[markers]\npublish = true\nsigma_mm = 0.5\n" + frames
+
+
+def weights_scenario(width: int, height: int) -> str:
+    frames = f"\n[[frame]]\nactuation = [3.0, 3.0, 3.0, 3.0]\nrepeat = {HOLD_FRAMES}\n"
+    for weight in WEIGHTS_N:
+        frames += (f"\n[[frame]]\nactuation = [3.0, 3.0, 3.0, 3.0]\nrepeat = {HOLD_FRAMES}\n"
+                   f'load = [{{ kind = "weight", point_mm = {list(APEX_LOAD_POINT)}, '
+                   f"force_n = {weight} }}]\n")
+    return _header("weights", 12) + _camera(width, height) + frames
+
+
+def probe_points() -> list[tuple[float, float, float]]:
+    """12 points on the upper bars (a quarter, half and three quarters from apex to elbow)."""
+    apex, points = np.array([0.0, 0.0, 126.0]), []
+    for angle in (90.0, 180.0, 270.0, 0.0):
+        elbow = np.array([97 * np.cos(np.radians(angle)), 97 * np.sin(np.radians(angle)), 45.0])
+        for t in (0.25, 0.5, 0.75):
+            points.append(tuple(np.round(apex + t * (elbow - apex), 2)))
+    return points
+
+
+def probes_scenario(width: int, height: int) -> str:
+    rng = np.random.default_rng(5)
+    points = probe_points()
+    actuation = "[5.0, 0.0, 5.0, 0.0]"
+    frames = f"\n[[frame]]\nactuation = {actuation}\nrepeat = {HOLD_FRAMES}\n"
+    for i, point in enumerate(points):
+        force = round(float(rng.uniform(0.3, 0.6)), 3)
+        frames += (f"\n[[frame]]\nactuation = {actuation}\nrepeat = {HOLD_FRAMES}\n"
+                   f'load = [{{ kind = "probe", point_mm = {list(point)}, force_n = {force} }}]\n')
+        frames += f"\n[[frame]]\nactuation = {actuation}\nrepeat = 1\n"
+        if i % 3 == 2:
+            other = points[(i + 4) % len(points)]
+            frames += (f"\n[[frame]]\nactuation = {actuation}\nrepeat = {HOLD_FRAMES}\n"
+                       f'load = [{{ kind = "probe", point_mm = {list(point)}, force_n = 0.4 }},'
+                       f' {{ kind = "probe", point_mm = {list(other)}, force_n = 0.5 }}]\n')
+    return _header("probes", 13) + _camera(width, height) + frames
+
+
+def recording(name: str, text: str) -> Path:
+    """Simulate a scenario once; later runs reuse the recording."""
+    OUT.mkdir(parents=True, exist_ok=True)
+    path = OUT / f"{name}.mcap"
+    if not path.exists():
+        scenario = OUT / f"{name}.toml"
+        scenario.write_text(text)
+        began = time.perf_counter()
+        simulate(scenario, path)
+        print(f"simulated {name} in {time.perf_counter() - began:.0f} s", file=sys.stderr)
+    return path
+
+
+def pose_calibration(robot_file: Path) -> Path:
+    robot = load_robot(robot_file)
+    taken = markers_from_recording(recording("markers", markers_scenario()), None)
+    result = calibrate_checked(robot, taken.markers, source="study")
+    path = OUT / f"calibration_{robot_file.parent.name}.json"
+    path.write_text(result_to_json(result))
+    return path
+
+
+def material_calibration(robot_file: Path, pose: Path, weights: Path) -> Path:
+    """Young's modulus from the 660 mN hold against the unloaded hold."""
+    from softforce_cli.calibration.result import read_calibration
+
+    robot = load_robot(robot_file)
+    transform = read_calibration(pose).robot_from_camera
+    vision = VisionSettings()
+    k = 1 + WEIGHTS_N.index(CALIBRATION_WEIGHT_N)
+    load = KnownLoad(np.array(APEX_LOAD_POINT), np.array([0.0, 0.0, -CALIBRATION_WEIGHT_N]))
+    loaded = load_case(robot, transform, weights, f"{k * HOLD_FRAMES}:{(k + 1) * HOLD_FRAMES}",
+                       load, vision)
+    unloaded = load_case(robot, transform, weights, f"0:{HOLD_FRAMES}", None, vision)
+    fit = fit_young_modulus(robot, loaded, unloaded, vision)
+    document = json.loads(pose.read_text())
+    document["material"] = fit.to_dict()
+    path = pose.with_name(pose.stem + "_material.json")
+    path.write_text(json.dumps(document, indent=2))
+    return path
+
+
+def sense(recording_path: Path, robot_file: Path, calibration: Path, name: str,
+          **options) -> dict:
+    folder = OUT / name
+    inputs = SenseInputs(recording=recording_path, robot=robot_file, calibration=calibration,
+                         output=folder, force=True, **options)
+    prepared = prepare_sensing(inputs)
+    run_sensing(prepared.frames, prepared.sensor, folder, prepared.header, force=True)
+    return json.loads((folder / "sense.json").read_text())
+
+
+def table_iii(robot_file: Path, pose: Path, width: int, height: int) -> dict:
+    weights = recording(f"weights_{width}", weights_scenario(width, height))
+    calibration = material_calibration(robot_file, pose, weights)
+    document = sense(weights, robot_file, calibration, f"table3_{robot_file.parent.name}",
+                     contact_point=",".join(map(str, APEX_LOAD_POINT)), direction="0,0,-1")
+    rows = []
+    for k, weight in enumerate(WEIGHTS_N, start=1):
+        held = [f for f in document["frames"] if k * HOLD_FRAMES <= f["frame"]
+                < (k + 1) * HOLD_FRAMES and f["status"] == "ok" and f["contacts"]]
+        estimate = float(np.median([f["contacts"][0]["force_n"] for f in held]))
+        rows.append({"weight_n": weight, "estimate_n": estimate,
+                     "relative_error": abs(estimate - weight) / weight,
+                     "calibration": weight == CALIBRATION_WEIGHT_N})
+    tested = [r["relative_error"] for r in rows if not r["calibration"]]
+    material = json.loads(calibration.read_text())["material"]
+    return {"rows": rows, "mean_relative_error": float(np.mean(tested)),
+            "max_relative_error": float(np.max(tested)), "material": material,
+            "fps": document["summary"]["frames_per_s"]}
+
+
+def probes_study(robot_file: Path, pose: Path, width: int, height: int, name: str,
+                 **options) -> dict:
+    probes = recording(f"probes_{width}", probes_scenario(width, height))
+    document = sense(probes, robot_file, pose, name, **options)
+    comparison = compare_with_truth(document, read_truth(probes.with_suffix(".truth.json")))
+    return {**comparison.summary(), "fps": document["summary"]["frames_per_s"],
+            "median_total_ms": document["summary"]["median_total_ms"]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--robot", type=Path, default=ESTIMATOR, help="estimator robot file")
+    parser.add_argument("--width", type=int, default=640)
+    parser.add_argument("--height", type=int, default=480)
+    args = parser.parse_args()
+    pose = pose_calibration(args.robot)
+    results = {"robot": str(args.robot), "resolution": [args.width, args.height],
+               "table_iii": table_iii(args.robot, pose, args.width, args.height),
+               "probes": probes_study(args.robot, pose, args.width, args.height,
+                                      f"probes_{args.robot.parent.name}")}
+    print(json.dumps(results, indent=1))
+    (OUT / f"results_{args.robot.parent.name}.json").write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,67 @@
+"""`softforce calibrate --material`: Young's modulus from a recording with a known load."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from rich.table import Table
+
+from softforce_cli.cli.common import print_json, stderr, stdout
+from softforce_cli.errors import CalibrationError, SensingError
+
+
+def calibrate_material(robot_file: Path, output: Path, calibration: Path | None,
+                       recording: Path | None, reference: Path | None, load_point: str | None,
+                       load_n: str | None, frames: str | None, reference_frames: str | None,
+                       json_output: bool, force: bool) -> None:
+    from softforce_cli.calibration.material import KnownLoad, fit_young_modulus
+    from softforce_cli.calibration.material_inputs import load_case
+    from softforce_cli.calibration.result import read_calibration
+    from softforce_cli.estimation.setup import parse_vector
+    from softforce_cli.io.atomic import atomic_write_text, check_writable
+    from softforce_cli.model.robot import load_robot
+    from softforce_cli.vision.settings import VisionSettings
+
+    missing = [name for name, value in (("--calibration", calibration),
+                                        ("--recording", recording),
+                                        ("--load-point", load_point), ("--load-n", load_n))
+               if value is None]
+    if missing:
+        raise CalibrationError(f"--material needs {', '.join(missing)}")
+    check_writable(output, force)
+    try:
+        load = KnownLoad(parse_vector(load_point, "--load-point"), parse_vector(load_n, "--load-n"))
+    except SensingError as error:
+        raise CalibrationError(str(error)) from error
+    robot = load_robot(robot_file)
+    pose = read_calibration(calibration)
+    vision = VisionSettings()
+    with stderr.status("reading the loaded and reference states..."):
+        loaded = load_case(robot, pose.robot_from_camera, recording, frames, load, vision)
+        base = None
+        if reference is not None or reference_frames is not None:
+            base = load_case(robot, pose.robot_from_camera, reference or recording,
+                             reference_frames, None, vision)
+    with stderr.status("fitting Young's modulus...") as status:
+        fit = fit_young_modulus(robot, loaded, base, vision,
+                                progress=lambda n: status.update(f"fitting Young's modulus: "
+                                                                 f"{n} FE evaluations"))
+    document = json.loads(Path(calibration).read_text())
+    document["material"] = fit.to_dict()
+    atomic_write_text(output, json.dumps(document, indent=2) + "\n", force=force)
+    if json_output:
+        print_json(document["material"])
+    else:
+        table = Table(title="material", title_justify="left")
+        for name in ("", "Young's modulus (MPa)", "95% interval", "residual RMS (mm)"):
+            table.add_column(name, justify="right")
+        table.add_row("robot file", f"{fit.nominal_young_modulus_mpa:.4f}", "",
+                      f"{fit.nominal_residual_rms_mm:.3f}")
+        table.add_row("fitted", f"{fit.young_modulus_mpa:.4f}",
+                      f"{fit.ci95_mpa[0]:.4f} to {fit.ci95_mpa[1]:.4f}",
+                      f"{fit.residual_rms_mm:.3f}")
+        stdout.print(table)
+        stdout.print(f"{fit.features} feature points, element {fit.element}, law {fit.law}, "
+                     f"{fit.evaluations} FE evaluations")
+    stderr.print(f"wrote [bold]{output}[/]")

@@ -1,0 +1,125 @@
+"""`softforce sense`: where external forces act on the robot and how hard, frame by frame."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from softforce_cli.cli.common import ForceOption, stderr, stdout
+from softforce_cli.cli.interrupt import deferred_interrupt, interrupted_exit_code, signal_name
+from softforce_cli.errors import SensingError
+
+FORCE_MODELS = ("normal", "3d")
+
+
+def sense(
+    recording: Annotated[Path | None, typer.Argument(
+        help="The recording (.mcap) to process; omit with --live.", dir_okay=False)] = None,
+    robot: Annotated[Path, typer.Option("--robot", help="Robot model file (TOML).")] = ...,
+    calibration: Annotated[Path, typer.Option(
+        "--calibration", help="Calibration JSON from `softforce calibrate` (its material, "
+        "when present, replaces the robot file's Young's modulus).")] = ...,
+    output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")] = ...,
+    live: Annotated[bool, typer.Option("--live", help="Sense from the connected RealSense "
+                                       "until Ctrl-C.")] = False,
+    frames: Annotated[str | None, typer.Option(
+        "--frames", help="Process frames START:STOP (0-based, STOP excluded).")] = None,
+    contact_point: Annotated[str | None, typer.Option(
+        "--contact-point", help="X,Y,Z (mm, robot frame, robot at rest): a known contact; "
+        "only its intensity is estimated (needs --direction).")] = None,
+    direction: Annotated[str | None, typer.Option(
+        "--direction", help="DX,DY,DZ: the known contact's force direction on the robot.")
+    ] = None,
+    settings_file: Annotated[Path | None, typer.Option(
+        "--settings", help="TOML with [vision] and [estimation] thresholds (docs/sensing.md).")
+    ] = None,
+    force_model: Annotated[str | None, typer.Option(
+        "--force-model", help="normal: one push along the inward normal per contact (the "
+        "paper); 3d: a free force vector per contact.")] = None,
+    updates: Annotated[int | None, typer.Option(
+        "--updates", help="FE updates per frame (default 2).")] = None,
+    record: Annotated[Path | None, typer.Option(
+        "--record", help="With --live: also keep every camera frame in this MCAP recording.",
+        dir_okay=False)] = None,
+    robot_rgb: Annotated[str | None, typer.Option(
+        "--robot-rgb", help="R,G,B of the robot (0-255); default: learned on the first frame.")
+    ] = None,
+    force: ForceOption = False,
+) -> None:
+    """Estimate contact locations and force intensities per frame (paper section V)."""
+    from softforce_cli.estimation.setup import SenseInputs, prepare_sensing
+    from softforce_cli.fem.allocator import keep_freed_memory
+
+    if live == (recording is not None):
+        raise SensingError("give exactly one of a recording REC.mcap or --live")
+    overrides = {}
+    if force_model is not None:
+        overrides["estimation.force_model"] = force_model
+    if updates is not None:
+        overrides["estimation.updates_per_frame"] = updates
+    inputs = SenseInputs(
+        recording=recording, robot=robot, calibration=calibration, output=output,
+        frames=frames, contact_point=contact_point, direction=direction,
+        settings_file=settings_file, overrides=overrides, robot_rgb=robot_rgb, record=record,
+        force=force,
+    )
+    keep_freed_memory()
+    with stderr.status("loading the robot and the first frame..."):
+        prepared = prepare_sensing(inputs, live=live)
+    # the interrupt is deferred outside the live source, so that a Ctrl-C ends the loop and
+    # the source still drains and finishes the --record recording
+    with deferred_interrupt() as stop, prepared.resources:
+        summary = _run(prepared, lambda: stop.requested)
+    _print_summary(summary)
+    where = f"{output}/ (contacts.csv, frames.csv, sense.json)"
+    if summary.interrupted:
+        stderr.print(f"[yellow]interrupted ({signal_name()}):[/] the {summary.frames} frames "
+                     f"processed are in {where}")
+        raise typer.Exit(stop.exit_code if stop.requested else interrupted_exit_code())
+    stderr.print(f"wrote {where}")
+
+
+def _run(prepared, stop_requested):
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from softforce_cli.estimation.session import run_sensing
+
+    columns = (TextColumn("sensing"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+               TextColumn("{task.fields[rate]}"))
+    with Progress(*columns, console=stderr) as progress:
+        task = progress.add_task("sensing", total=prepared.frame_count, rate="")
+
+        def on_frame(estimate, summary) -> None:
+            forces = ", ".join(f"#{c.contact} {c.force_n:.3f} N" for c in estimate.contacts)
+            progress.update(task, completed=summary.frames,
+                            rate=f"{summary.frames_per_s:.1f} fps  {forces}")
+
+        return run_sensing(prepared.frames, prepared.sensor, prepared.output, prepared.header,
+                           force=prepared.force, on_frame=on_frame,
+                           stop_requested=stop_requested)
+
+
+def _print_summary(summary) -> None:
+    data = summary.to_dict()
+    table = Table(title="contacts", title_justify="left")
+    for name in ("contact", "frames", "min (N)", "mean (N)", "max (N)"):
+        table.add_column(name, justify="right")
+    for c in data["contacts"]:
+        table.add_row(str(c["contact"]), str(c["frames"]), f"{c['force_min_n']:.4f}",
+                      f"{c['force_mean_n']:.4f}", f"{c['force_max_n']:.4f}")
+    if data["contacts"]:
+        stdout.print(table)
+    stages = Table(title="median time per frame (ms)", title_justify="left")
+    medians = {k: v for k, v in data["median_stage_ms"].items() if v > 0}
+    for name in medians:
+        stages.add_column(name, justify="right")
+    stages.add_row(*(f"{v:.1f}" for v in medians.values()))
+    stdout.print(stages)
+    skipped = ", ".join(f"{n} {reason}" for reason, n in data["skipped"].items()) or "none"
+    fps = data["frames_per_s"]
+    stdout.print(f"{data['frames']} frames, {data['ok']} ok, skipped: {skipped}; "
+                 f"{len(data['contacts'])} contacts; "
+                 f"{'' if fps is None else f'{fps:.1f} fps'}")

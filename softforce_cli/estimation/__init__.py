@@ -1,0 +1,1 @@
+"""Force sensing: contact intensities by quadratic programming and the per-frame loop."""

@@ -1,0 +1,337 @@
+"""Force sensing, frame by frame (paper section V): where the robot is touched and how hard.
+
+Per frame: the vision stage (softforce_cli.vision.pipeline) turns the depth image into robot
+and object points, finds contacts where object points crowd robot points (Algorithm 2), maps
+each to its nearest feature point and matches the feature points to the robot points along
+the current FE surface normals (Algorithm 3). The FE model, linearised at its current
+configuration, gives the normal compliance of eq. 10, and the QP of eq. 11-14 the contact
+intensities with the cables' inputs as constraints. Eq. 6 then moves the FE configuration
+towards the observed robot, and the next frame starts from there.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from softforce_cli.calibration.rigid import RigidTransform
+from softforce_cli.camera.frame import RgbdFrame
+from softforce_cli.errors import SensingError, SolverError
+from softforce_cli.estimation.intensity import IntensityProblem, solve_intensities
+from softforce_cli.estimation.results import ContactEstimate, FrameEstimate
+from softforce_cli.estimation.settings import SenseSettings
+from softforce_cli.estimation.tracking import ContactTracker
+from softforce_cli.fem.attachment import Attachment
+from softforce_cli.fem.compliance import compliance, linearize
+from softforce_cli.fem.statics import solve_equilibrium
+from softforce_cli.model.mesh import vertex_normals
+from softforce_cli.model.robot import Robot
+from softforce_cli.vision.contacts import nearest_features
+from softforce_cli.vision.feature_matching import FeatureMatches, match_features
+from softforce_cli.vision.filters import crop_box_from_bounds, voxel_downsample
+from softforce_cli.vision.pipeline import VisionResult, process_frame
+from softforce_cli.vision.point_cloud import PointCloud, cloud_from_frame
+from softforce_cli.vision.segmentation import learn_robot_colour
+from softforce_cli.vision.settings import VisionSettings
+
+# Matched features within this distance of a contact give its local fit residual (mm): about
+# the spacing of 51 features on the Diamond.
+LOCAL_RESIDUAL_RADIUS_MM = 30.0
+AXES = np.eye(3)
+
+
+@dataclass(frozen=True)
+class KnownContact:
+    """A contact given by the user (the paper's Table III): rest_point_mm (3,) on the robot at
+    rest, robot frame; direction (3,) unit direction of the force on the robot."""
+
+    rest_point_mm: np.ndarray
+    direction: np.ndarray
+
+
+@dataclass(frozen=True)
+class _Columns:
+    """The contact force columns of one update: their attachment, directions (f, 3), which
+    may only push, and for each contact the columns that make up its force."""
+
+    points: Attachment
+    directions: np.ndarray
+    unilateral: np.ndarray
+    groups: tuple[np.ndarray, ...]
+
+
+@dataclass(frozen=True)
+class Update:
+    matches: FeatureMatches
+    columns: _Columns
+    forces_n: np.ndarray
+    residual_mm: np.ndarray
+
+
+class ForceSensor:
+    """The estimator's state between frames: the FE configuration, its cable tensions, the
+    factorisation to reuse, the robot's colour and the contact tracks.
+
+    robot_from_camera maps camera points to robot points (calibration); start_actuation (a,)
+    the calibrated cable inputs, in each cable's control units.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        robot_from_camera: RigidTransform,
+        start_actuation: np.ndarray,
+        settings: SenseSettings,
+        known_contact: KnownContact | None = None,
+        robot_rgb: np.ndarray | None = None,
+    ) -> None:
+        self.robot = robot
+        self.model = robot.fe_model
+        self.transform = robot_from_camera
+        self.settings = settings
+        self.known_contact = known_contact
+        self.robot_rgb = None if robot_rgb is None else np.asarray(robot_rgb, dtype=float)
+        self.features = Attachment.at_nodes(robot.feature_nodes)
+        self.controls = tuple(spec.control for spec in robot.cable_specs)
+        self.actuation = np.asarray(start_actuation, dtype=float)
+        start = solve_equilibrium(self.model, robot.cable_inputs(self.actuation))
+        self.positions = start.positions_mm
+        self.tensions = start.cable_tensions_n
+        self.factorization = None
+        self.tracker = ContactTracker(settings.estimation.track_radius_mm)
+        clamped = robot.mesh.nodes_mm[robot.fixed_nodes]
+        self.clamped_box = np.r_[clamped.min(axis=0), clamped.max(axis=0)]
+        if known_contact is not None:
+            point = np.asarray(known_contact.rest_point_mm, dtype=float)[None]
+            self.known_points = robot.attach(point)
+
+    def feature_geometry(self) -> tuple[np.ndarray, np.ndarray]:
+        """Feature positions (p, 3) mm and outward unit normals (p, 3) at the configuration."""
+        mesh = self.robot.mesh
+        nodes = self.positions[: mesh.node_count]
+        normals = vertex_normals(nodes, mesh.surface_faces)[self.robot.feature_nodes]
+        return nodes[self.robot.feature_nodes], normals
+
+    def process(self, index: int, frame: RgbdFrame) -> FrameEstimate:
+        """Estimate the contacts of one frame and move the FE configuration to it."""
+        timings: dict[str, float] = {}
+        time_s = frame.time_ns * 1e-9
+        if frame.actuation is not None:
+            self.actuation = np.asarray(frame.actuation.values, dtype=float)
+        vision = self._vision(frame)
+        timings.update({k: v for k, v in vision.timings_ms.items() if k != "total"})
+        segmentation = vision.segmentation
+        counts = dict(points_kept=len(vision.cloud), robot_points=len(segmentation.robot),
+                      object_points=len(segmentation.objects))
+        if not len(vision.cloud):
+            return FrameEstimate(index, time_s, "nodepth", timings_ms=timings, **counts)
+        if len(segmentation.robot) < self.settings.estimation.min_robot_points:
+            return FrameEstimate(index, time_s, "norobot", timings_ms=timings, **counts)
+        contact_nodes = self._contact_nodes(vision)
+        clock = _Clock(timings)
+        saved = (self.positions, self.tensions)
+        outcome: Update | None = None
+        matches = vision.matches
+        try:
+            for _ in range(self.settings.estimation.updates_per_frame):
+                if outcome is not None:
+                    matches = self._match(segmentation.robot.points_mm)
+                    clock.lap("matching")
+                update = self.update(matches, contact_nodes, clock)
+                if update is None:
+                    break
+                outcome = update
+        except SolverError:
+            self.positions, self.tensions = saved
+            self.factorization = None
+            return FrameEstimate(index, time_s, "solver", timings_ms=timings, **counts)
+        if outcome is None:
+            return FrameEstimate(index, time_s, "fewmatches", timings_ms=timings, **counts)
+        contacts = self._contacts(outcome)
+        clock.lap("update")
+        matches = outcome.matches
+        return FrameEstimate(
+            index, time_s, "ok", contacts, **counts,
+            features_matched=int(matches.matched.sum()),
+            features_hidden=int(matches.hidden.sum()),
+            features_rejected=int(matches.rejected.sum()),
+            fit_rms_mm=float(np.sqrt(np.mean(outcome.residual_mm**2))),
+            cable_tensions_n=self.tensions.copy(), timings_ms=timings,
+        )
+
+    def _vision(self, frame: RgbdFrame) -> VisionResult:
+        """The vision stage at the current configuration (the robot's colour learned on the
+        first frame unless given)."""
+        nodes = self.positions[: self.robot.mesh.node_count]
+        bounds = np.array([nodes.min(axis=0), nodes.max(axis=0)])
+        if self.robot_rgb is None:
+            self.robot_rgb = learned_robot_colour(frame, self.transform, nodes,
+                                                  self.robot.mesh.surface_nodes,
+                                                  self.settings.vision)
+        positions, normals = self.feature_geometry()
+        return process_frame(frame.depth_mm, frame.color, frame.intrinsics, self.transform,
+                             bounds, positions, normals, self.robot_rgb, self.settings.vision,
+                             self.clamped_box)
+
+    def _match(self, robot_points_mm: np.ndarray) -> FeatureMatches:
+        positions, normals = self.feature_geometry()
+        return match_features(positions, normals, robot_points_mm, self.settings.vision,
+                              camera_mm=self.transform.translation_mm)
+
+    def _contact_nodes(self, vision: VisionResult) -> np.ndarray:
+        """(c,) mesh nodes where the detected contacts act (none with a known contact): the
+        surface node nearest to each contact centre, or with contact_at = "feature" the
+        paper's nearest feature point."""
+        if self.known_contact is not None:
+            return np.zeros(0, dtype=np.int64)
+        if self.settings.estimation.contact_at == "feature":
+            return np.unique(self.robot.feature_nodes[vision.contact_features])
+        surface = self.robot.mesh.surface_nodes
+        _, nearest = cKDTree(self.positions[surface]).query(vision.contacts.centres_mm)
+        return np.unique(surface[np.asarray(nearest, dtype=np.int64)])
+
+    def _columns(self, contact_nodes: np.ndarray) -> _Columns:
+        """Force columns for the contacts: along the inward normal (one push each), the known
+        direction, or three free axes per contact ("3d")."""
+        if self.known_contact is not None:
+            direction = np.asarray(self.known_contact.direction, dtype=float)[None]
+            return _Columns(self.known_points, direction, np.ones(1, bool), (np.arange(1),))
+        c = len(contact_nodes)
+        if self.settings.estimation.force_model == "3d":
+            points = Attachment.at_nodes(np.repeat(contact_nodes, 3))
+            groups = tuple(np.arange(3 * i, 3 * i + 3) for i in range(c))
+            return _Columns(points, np.tile(AXES, (c, 1)), np.zeros(3 * c, bool), groups)
+        mesh = self.robot.mesh
+        normals = vertex_normals(self.positions[: mesh.node_count], mesh.surface_faces)
+        groups = tuple(np.array([i]) for i in range(c))
+        return _Columns(Attachment.at_nodes(contact_nodes), -normals[contact_nodes],
+                        np.ones(c, bool), groups)
+
+    def update(self, matches: FeatureMatches, contact_nodes: np.ndarray,
+               clock: _Clock | None = None) -> Update | None:
+        """One FE update (eq. 10-14, then eq. 6) from feature matches at the current
+        configuration, with contact forces at the mesh nodes contact_nodes (c,) (or at the
+        known contact); None when too few features match for the unknowns."""
+        clock = clock or _Clock({})
+        _, normals = self.feature_geometry()
+        columns = self._columns(contact_nodes)
+        matched = matches.matched
+        unknowns = len(self.controls) + len(columns.directions)
+        if matched.sum() < max(self.settings.estimation.min_matched, unknowns + 1):
+            return None
+        node_count = self.model.node_count
+        lin = linearize(self.model, self.positions, self.tensions,
+                        factorization=self.factorization)
+        self.factorization = lin.factorization
+        force_rows = columns.points.directional_rows(columns.directions, node_count)
+        effector_rows = self.features.subset(matched).directional_rows(normals[matched],
+                                                                        node_count)
+        projected = compliance(lin, effector_rows, force_rows)
+        clock.lap("fe")
+        problem = IntensityProblem(
+            projected.W_ea, projected.W_ef, projected.delta_e_free,
+            matches.normal_mm[matched], projected.W_aa, projected.W_af,
+            projected.delta_a_free, columns.unilateral,
+        )
+        solution = solve_intensities(problem, self.controls, self.actuation,
+                                     self.settings.estimation.regularization)
+        clock.lap("qp")
+        # eq. 6: x <- x + dx_free + K^-1 (H_a^T lam_a + H_f^T lam_f), one more solve
+        loads = (solution.cable_tensions_n @ self.model.cable_jacobian(self.positions)
+                 + force_rows.T @ solution.contact_forces_n)
+        step = lin.free_motion_mm + lin.responses(loads[None]).reshape(-1, 3)
+        self.positions = self.positions + step
+        self.tensions = solution.cable_tensions_n
+        clock.lap("update")
+        return Update(matches, columns, solution.contact_forces_n, solution.residual_mm)
+
+    def _contacts(self, update: Update) -> tuple[ContactEstimate, ...]:
+        columns = update.columns
+        points = columns.points.positions(self.positions)
+        feature_positions, _ = self.feature_geometry()
+        matched_positions = feature_positions[update.matches.matched]
+        positions = np.array([points[group[0]] for group in columns.groups]).reshape(-1, 3)
+        indices = self.tracker.assign(positions)
+        features = nearest_features(positions, feature_positions)
+        estimates = []
+        for i, group in enumerate(columns.groups):
+            vector = update.forces_n[group] @ columns.directions[group]
+            near = np.linalg.norm(matched_positions - positions[i], axis=1) \
+                <= LOCAL_RESIDUAL_RADIUS_MM
+            local = update.residual_mm[near] if near.any() else update.residual_mm
+            estimates.append(ContactEstimate(
+                int(indices[i]), int(features[i]), positions[i], vector,
+                float(np.sqrt(np.mean(local**2))),
+            ))
+        return tuple(estimates)
+
+
+class _Clock:
+    """Accumulates the wall time between laps into timings[stage] (ms): a stage met twice in
+    a frame (several FE updates) adds up."""
+
+    def __init__(self, timings: dict[str, float]) -> None:
+        self.timings = timings
+        self.last = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        now = time.perf_counter()
+        self.timings[stage] = self.timings.get(stage, 0.0) + 1e3 * (now - self.last)
+        self.last = now
+
+
+def learned_robot_colour(frame: RgbdFrame, robot_from_camera: RigidTransform,
+                         nodes_mm: np.ndarray, surface_nodes: np.ndarray,
+                         vision: VisionSettings) -> np.ndarray:
+    """(3,) RGB of the robot: the colour of the frame's points near the model's surface."""
+    bounds = np.array([nodes_mm.min(axis=0), nodes_mm.max(axis=0)])
+    cloud = cloud_from_frame(frame.depth_mm, frame.color, frame.intrinsics, robot_from_camera,
+                             crop_box_from_bounds(bounds, vision.crop_margin_mm))
+    return np.asarray(learn_robot_colour(cloud, nodes_mm[surface_nodes]), dtype=float)
+
+
+def observed_robot_points(frames: list[RgbdFrame], robot_from_camera: RigidTransform,
+                          robot: Robot, vision: VisionSettings) -> np.ndarray:
+    """(k, 3) mm robot points of a static state seen in several frames, robot frame: each
+    frame through the vision stage at the rest shape, pooled and voxel-averaged (which
+    averages the frames' depth noise)."""
+    nodes = robot.rest_nodes_mm[: robot.mesh.node_count]
+    bounds = np.array([nodes.min(axis=0), nodes.max(axis=0)])
+    positions = nodes[robot.feature_nodes]
+    normals = robot.feature_normals
+    rgb = None
+    pooled = []
+    for frame in frames:
+        if rgb is None:
+            rgb = learned_robot_colour(frame, robot_from_camera, nodes, robot.mesh.surface_nodes,
+                                       vision)
+        result = process_frame(frame.depth_mm, frame.color, frame.intrinsics, robot_from_camera,
+                               bounds, positions, normals, rgb, vision)
+        pooled.append(result.segmentation.robot)
+    points = np.concatenate([c.points_mm for c in pooled])
+    if not len(points):
+        raise SensingError("no robot point in the selected frames: is the robot in view and "
+                           "the calibration right?")
+    colors = np.concatenate([c.colors for c in pooled])
+    return voxel_downsample(PointCloud(points, colors), vision.voxel_mm).points_mm
+
+
+def check_actuation(robot: Robot, frame: RgbdFrame, source: str) -> None:
+    """SensingError unless the frame's actuation names and controls match the robot's cables."""
+    names = tuple(spec.name for spec in robot.cable_specs)
+    if frame.actuation is None:
+        if names:
+            raise SensingError(f"{source}: no /robot/actuation message in the first frame, but "
+                               f"the robot's cables ({', '.join(names)}) need their inputs; "
+                               "record them with `softforce record --actuation ACT.csv`")
+        return
+    if tuple(frame.actuation.names) != names:
+        raise SensingError(f"{source}: the actuation names {list(frame.actuation.names)} are not "
+                           f"the robot's cables {list(names)} (same order)")
+    controls = {spec.control for spec in robot.cable_specs}
+    if controls != {frame.actuation.control}:
+        raise SensingError(f"{source}: the actuation is {frame.actuation.control}-controlled but "
+                           f"the robot file's cables are {', '.join(sorted(controls))}-controlled")

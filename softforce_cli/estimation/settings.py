@@ -1,0 +1,126 @@
+"""Settings of `softforce sense`: the vision thresholds and the estimator's, from TOML or flags.
+
+A settings file has two optional tables, each key a field of the dataclass of the same name:
+
+    [vision]                  # softforce_cli.vision.settings.VisionSettings
+    voxel_mm = 1.1
+    [estimation]              # EstimationSettings below
+    force_model = "normal"
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from softforce_cli.errors import SensingError
+from softforce_cli.vision.settings import VisionSettings
+
+FORCE_MODELS = ("normal", "3d")
+CONTACT_AT = ("node", "feature")
+
+
+@dataclass(frozen=True)
+class EstimationSettings:
+    """The intensity estimator's settings, with why.
+
+    force_model        : "normal": one push per contact along the inward surface normal (the
+                         paper; a probe or a finger cannot pull); "3d": a free force vector per
+                         contact (friction, a hanging weight at an unknown angle).
+    contact_at         : "node": a detected contact acts at the surface node nearest to its
+                         centre; "feature": at the nearest feature point, as in the paper. The
+                         nodes are 3-6 mm apart, the 51 features about 30 mm: a force moved by
+                         15 mm along a bar changes the bending it causes by tens of percent.
+    updates_per_frame  : FE updates (linearise, QP, eq. 6) per frame. The paper does one per
+                         frame and lets the configuration converge over the following frames;
+                         two reach equilibrium within a frame when the load changes abruptly
+                         between frames (one frame per state in a slow recording).
+    track_radius_mm    : a contact within this of one of the previous frame's keeps its index
+                         (a probe slides a few mm between frames at 30 fps).
+    min_matched        : fewer matched features than this (or than unknowns + 1) skips the frame.
+    min_robot_points   : fewer robot points than this means the robot is not in view.
+    regularization     : relative Tikhonov weight on contact forces (estimation.intensity).
+    """
+
+    force_model: str = "normal"
+    contact_at: str = "node"
+    updates_per_frame: int = 2
+    track_radius_mm: float = 15.0
+    min_matched: int = 6
+    min_robot_points: int = 200
+    regularization: float = 1e-6
+
+    def __post_init__(self) -> None:
+        if self.force_model not in FORCE_MODELS:
+            raise SensingError(f"estimation.force_model {self.force_model!r} unknown; use "
+                               f"one of {', '.join(FORCE_MODELS)}")
+        if self.contact_at not in CONTACT_AT:
+            raise SensingError(f"estimation.contact_at {self.contact_at!r} unknown; use one of "
+                               f"{', '.join(CONTACT_AT)}")
+        if self.updates_per_frame < 1:
+            raise SensingError("estimation.updates_per_frame must be at least 1")
+
+
+@dataclass(frozen=True)
+class SenseSettings:
+    vision: VisionSettings = field(default_factory=VisionSettings)
+    estimation: EstimationSettings = field(default_factory=EstimationSettings)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def load_settings(path: Path | None, overrides: dict[str, Any] | None = None) -> SenseSettings:
+    """Settings from a TOML file (or the defaults), then `overrides` {"table.key": value}."""
+    tables: dict[str, dict[str, Any]] = {"vision": {}, "estimation": {}}
+    if path is not None:
+        if not Path(path).is_file():
+            raise SensingError(f"settings file {path} not found")
+        try:
+            data = tomllib.loads(Path(path).read_text())
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
+            raise SensingError(f"{path}: not valid TOML ({error})") from error
+        unknown = sorted(set(data) - set(tables))
+        if unknown:
+            raise SensingError(f"{path}: unknown table [{unknown[0]}]; expected [vision] or "
+                               "[estimation]")
+        for name in tables:
+            if not isinstance(data.get(name, {}), dict):
+                raise SensingError(f"{path}: {name} must be a table")
+            tables[name].update(data.get(name, {}))
+    for key, value in (overrides or {}).items():
+        table, _, name = key.partition(".")
+        tables[table][name] = value
+    where = path if path is not None else "settings"
+    return SenseSettings(
+        vision=_build(VisionSettings, tables["vision"], f"{where} [vision]"),
+        estimation=_build(EstimationSettings, tables["estimation"], f"{where} [estimation]"),
+    )
+
+
+def _build(kind: type, values: dict[str, Any], where: str) -> Any:
+    fields = {f.name: f for f in dataclasses.fields(kind)}
+    unknown = sorted(set(values) - set(fields))
+    if unknown:
+        raise SensingError(f"{where}: unknown key {unknown[0]!r}; expected one of "
+                           f"{', '.join(sorted(fields))}")
+    defaults = kind()
+    checked = {}
+    for name, value in values.items():
+        default = getattr(defaults, name)
+        expected = type(default) if default is not None else None
+        if expected is float and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if expected is tuple and isinstance(value, list):
+            value = tuple(value)
+        wrong_type = expected is not None and not isinstance(value, expected)
+        if wrong_type or (isinstance(value, bool) and expected is not bool):
+            raise SensingError(f"{where}: {name} must be {expected.__name__}, got {value!r}")
+        checked[name] = value
+    try:
+        return dataclasses.replace(defaults, **checked)
+    except ValueError as error:
+        raise SensingError(f"{where}: {error}") from error

@@ -1,0 +1,157 @@
+"""Everything `softforce sense` checks and loads before the first frame is processed."""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from softforce_cli import __version__
+from softforce_cli.calibration.material import read_material, robot_with_material
+from softforce_cli.calibration.result import read_calibration
+from softforce_cli.errors import SensingError
+from softforce_cli.estimation.sensing import ForceSensor, KnownContact, check_actuation
+from softforce_cli.estimation.session import FrameRange
+from softforce_cli.estimation.settings import load_settings
+from softforce_cli.io.sense_files import check_output_folder
+from softforce_cli.model.robot import load_robot
+
+
+@dataclass(frozen=True)
+class SenseInputs:
+    """The command line's inputs, as given (text for vectors, checked by prepare_sensing)."""
+
+    recording: Path | None
+    robot: Path
+    calibration: Path
+    output: Path
+    frames: str | None = None
+    contact_point: str | None = None
+    direction: str | None = None
+    settings_file: Path | None = None
+    overrides: dict[str, Any] = field(default_factory=dict)
+    robot_rgb: str | None = None
+    record: Path | None = None
+    force: bool = False
+
+
+@dataclass
+class PreparedSensing:
+    sensor: ForceSensor
+    frames: Any
+    header: dict[str, Any]
+    output: Path
+    force: bool
+    frame_count: int | None
+    resources: contextlib.ExitStack = field(default_factory=contextlib.ExitStack)
+
+
+def parse_vector(text: str, option: str, count: int = 3) -> np.ndarray:
+    """"1,2,3" -> array; SensingError naming the option otherwise."""
+    try:
+        values = np.array([float(v) for v in text.split(",")])
+    except ValueError:
+        values = np.zeros(0)
+    if values.shape != (count,) or not np.all(np.isfinite(values)):
+        raise SensingError(f"{option} {text!r}: give {count} comma-separated numbers")
+    return values
+
+
+def prepare_sensing(inputs: SenseInputs, live: bool = False) -> PreparedSensing:
+    """Check every input (robot, calibration, recording, outputs) and build the sensor."""
+    check_output_folder(inputs.output, inputs.force)
+    settings = load_settings(inputs.settings_file, inputs.overrides)
+    try:
+        frame_range = FrameRange.parse(inputs.frames)
+    except ValueError as error:
+        raise SensingError(str(error)) from error
+    known = _known_contact(inputs)
+    robot = load_robot(inputs.robot)
+    calibration = read_calibration(inputs.calibration)
+    if calibration.robot_name and calibration.robot_name != robot.name:
+        raise SensingError(f"{inputs.calibration} was made for robot {calibration.robot_name!r}, "
+                           f"not {robot.name!r} ({inputs.robot}); calibrate this robot first")
+    if len(calibration.actuation) not in (0, len(robot.cable_specs)):
+        raise SensingError(f"{inputs.calibration} has {len(calibration.actuation)} cable inputs, "
+                           f"the robot {len(robot.cable_specs)} cables; calibrate this robot")
+    material = read_material(inputs.calibration)
+    if material is not None:
+        robot = robot_with_material(robot, material)
+    rgb = None if inputs.robot_rgb is None else parse_vector(inputs.robot_rgb, "--robot-rgb")
+    resources = contextlib.ExitStack()
+    try:
+        frames, count, source = _frame_source(inputs, live, resources)
+        first = next(frames, None)
+        if first is None:
+            raise SensingError(f"{source}: no frame to process (check --frames)")
+        if not (live and len(calibration.actuation)):
+            # live frames carry no actuation: the calibrated inputs are held
+            check_actuation(robot, first[1], source)
+    except BaseException:
+        resources.close()
+        raise
+    # a pose-only calibration: the FE model starts from the first frame's actuation
+    start = calibration.actuation if len(calibration.actuation) else (
+        first[1].actuation.values if first[1].actuation is not None else np.zeros(0))
+    sensor = ForceSensor(robot, calibration.robot_from_camera, start, settings, known, rgb)
+    header = {
+        "format": "softforce.sense",
+        "version": 1,
+        "softforce_version": __version__,
+        "recording": source,
+        "robot": {"name": robot.name, "file": str(inputs.robot),
+                  "element": robot.config.mesh.element,
+                  "young_modulus_mpa": robot.material.young_modulus_mpa},
+        "calibration": {"file": str(inputs.calibration),
+                        "residual_rms_mm": None if np.isnan(calibration.residual_rms_mm)
+                        else calibration.residual_rms_mm,
+                        "material": material},
+        "settings": settings.to_dict(),
+        "known_contact": None if known is None else {
+            "rest_point_mm": known.rest_point_mm.tolist(),
+            "direction": known.direction.tolist()},
+        "features": len(robot.feature_nodes),
+    }
+    json.dumps(header)  # fail here, not mid-run, on a value JSON cannot hold
+    remaining = None if count is None else max(
+        0, min(count, frame_range.stop or count) - frame_range.start)
+    return PreparedSensing(sensor, itertools.chain([first], frames), header, inputs.output,
+                           inputs.force, remaining, resources)
+
+
+def _known_contact(inputs: SenseInputs) -> KnownContact | None:
+    if (inputs.contact_point is None) != (inputs.direction is None):
+        raise SensingError("--contact-point and --direction go together: give both or neither")
+    if inputs.contact_point is None:
+        return None
+    direction = parse_vector(inputs.direction, "--direction")
+    if np.linalg.norm(direction) == 0:
+        raise SensingError("--direction is zero; give the force's direction on the robot")
+    return KnownContact(parse_vector(inputs.contact_point, "--contact-point"),
+                        direction / np.linalg.norm(direction))
+
+
+def _frame_source(inputs: SenseInputs, live: bool, resources: contextlib.ExitStack):
+    """(frames (index, frame, decode_ms), frame count or None, a name for messages)."""
+    frame_range = FrameRange.parse(inputs.frames)
+    if live:
+        from softforce_cli.camera.live_source import LiveSource
+        from softforce_cli.camera.realsense import StreamSettings, iter_live_frames
+
+        # capture (and --record) run on their own threads; sensing takes the newest frame
+        source = resources.enter_context(LiveSource(
+            iter_live_frames(StreamSettings()), record_to=inputs.record, force=inputs.force,
+            metadata={"source": "softforce sense --live"}))
+        return frame_range.select(source.latest()), None, "live RealSense"
+    if inputs.record is not None:
+        raise SensingError("--record keeps the frames of --live; a recording is already kept")
+    from softforce_cli.io.mcap_reader import iter_frames, read_summary
+
+    path = Path(inputs.recording)
+    summary = read_summary(path)
+    return frame_range.select(iter_frames(path)), summary.frame_count, str(path)

@@ -1,0 +1,81 @@
+"""A running summary of a sensing run: frames, skips, contacts' force ranges, speed."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from softforce_cli.estimation.results import STAGES, FrameEstimate
+
+
+@dataclass
+class ContactRange:
+    frames: int = 0
+    min_n: float = float("inf")
+    max_n: float = 0.0
+    sum_n: float = 0.0
+
+
+@dataclass
+class SenseSummary:
+    """Accumulates FrameEstimates; to_dict() is sense.json's "summary"."""
+
+    frames: int = 0
+    ok: int = 0
+    skipped: dict[str, int] = field(default_factory=dict)
+    contacts: dict[int, ContactRange] = field(default_factory=dict)
+    stage_ms: dict[str, list[float]] = field(
+        default_factory=lambda: {s: [] for s in (*STAGES, "write")})
+    first_time_s: float | None = None
+    last_time_s: float | None = None
+    wall_s: float = 0.0
+    interrupted: bool = False
+
+    def add(self, estimate: FrameEstimate) -> None:
+        self.frames += 1
+        if self.first_time_s is None:
+            self.first_time_s = estimate.time_s
+        self.last_time_s = estimate.time_s
+        if estimate.status == "ok":
+            self.ok += 1
+        else:
+            self.skipped[estimate.status] = self.skipped.get(estimate.status, 0) + 1
+        for contact in estimate.contacts:
+            span = self.contacts.setdefault(contact.contact, ContactRange())
+            span.frames += 1
+            span.min_n = min(span.min_n, contact.force_n)
+            span.max_n = max(span.max_n, contact.force_n)
+            span.sum_n += contact.force_n
+        for stage in STAGES:
+            self.stage_ms[stage].append(estimate.timings_ms.get(stage, 0.0))
+
+    def add_write_ms(self, milliseconds: float) -> None:
+        self.stage_ms["write"].append(milliseconds)
+
+    @property
+    def frames_per_s(self) -> float:
+        return self.frames / self.wall_s if self.wall_s > 0 else float("nan")
+
+    def stage_medians_ms(self) -> dict[str, float]:
+        return {s: float(np.median(v)) if v else 0.0 for s, v in self.stage_ms.items()}
+
+    def to_dict(self) -> dict[str, Any]:
+        totals = np.sum([self.stage_ms[s] for s in STAGES], axis=0) if self.frames else []
+        return {
+            "frames": self.frames,
+            "ok": self.ok,
+            "skipped": dict(sorted(self.skipped.items())),
+            "interrupted": self.interrupted,
+            "contacts": [
+                {"contact": index, "frames": span.frames, "force_min_n": round(span.min_n, 6),
+                 "force_max_n": round(span.max_n, 6),
+                 "force_mean_n": round(span.sum_n / span.frames, 6)}
+                for index, span in sorted(self.contacts.items())
+            ],
+            "wall_s": round(self.wall_s, 3),
+            "frames_per_s": round(self.frames_per_s, 2) if self.wall_s > 0 else None,
+            "median_total_ms": round(float(np.median(totals)), 3) if self.frames else None,
+            "median_stage_ms": {k: round(v, 3) for k, v in self.stage_medians_ms().items()},
+        }

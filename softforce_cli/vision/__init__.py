@@ -1,0 +1,1 @@
+"""Vision (paper section V-A): robot and object clouds, contacts, feature matches."""

@@ -1,0 +1,200 @@
+"""Colour region growing (as PCL's RegionGrowingRGB) to split the robot from other objects.
+
+Regions grow over a radius graph: points closer than a neighbour distance whose colours are
+close are joined (connected components of the graph, not a seeded queue: same regions, no
+Python loop over points). Neighbouring regions with close mean colours are then merged, and
+regions below a minimum size join the neighbouring region they touch most, or are dropped when
+isolated. A region is robot when its mean colour is close to the robot's colour.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from softforce_cli.errors import SensingError
+from softforce_cli.vision.filters import radius_pairs
+from softforce_cli.vision.point_cloud import PointCloud
+from softforce_cli.vision.settings import VisionSettings
+
+
+@dataclass(frozen=True, eq=False)
+class Regions:
+    """A partition of a cloud's points into colour regions.
+
+    labels : (n,) int64 region of each point, -1 for points of dropped (isolated, small)
+             regions.
+    colors : (r, 3) float64 mean RGB of each region.
+    sizes  : (r,) int64 points in each region.
+    """
+
+    labels: np.ndarray
+    colors: np.ndarray
+    sizes: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return len(self.sizes)
+
+
+@dataclass(frozen=True, eq=False)
+class Segmentation:
+    """The robot's points X_r and the other objects' points X_o of one cloud.
+
+    robot, objects : the two clouds; points of dropped regions are in neither.
+    regions        : the colour regions they came from (labels index the input cloud).
+    robot_regions  : (r,) bool, which regions are robot.
+    """
+
+    robot: PointCloud
+    objects: PointCloud
+    regions: Regions
+    robot_regions: np.ndarray
+
+    @property
+    def dropped_points(self) -> int:
+        return int(np.count_nonzero(self.regions.labels < 0))
+
+
+def _components(n: int, pairs: np.ndarray) -> tuple[int, np.ndarray]:
+    """Connected components of n nodes joined by pairs (m, 2) -> (count, labels (n,))."""
+    graph = coo_matrix((np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), (n, n))
+    return connected_components(graph, directed=False)
+
+
+def _means(labels: np.ndarray, count: int, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean of values (n, 3) per label (n,) in 0..count-1 -> (count, 3), sizes (count,)."""
+    sizes = np.bincount(labels, minlength=count)
+    sums = np.stack([np.bincount(labels, values[:, a], count) for a in range(3)], axis=1)
+    return sums / np.maximum(sizes, 1)[:, None], sizes
+
+
+def _region_pairs(
+    labels: np.ndarray, count: int, pairs: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct neighbouring region pairs (q, 2), i < j, and how many point pairs join each."""
+    a, b = labels[pairs[:, 0]], labels[pairs[:, 1]]
+    low, high = np.minimum(a, b), np.maximum(a, b)
+    between = low != high
+    key, counts = np.unique(low[between] * count + high[between], return_counts=True)
+    return np.stack([key // count, key % count], axis=1), counts
+
+
+def grow_regions(
+    points_mm: np.ndarray,
+    colors: np.ndarray,
+    neighbour_mm: float,
+    point_threshold: float,
+    region_threshold: float,
+    min_points: int,
+    pairs: np.ndarray | None = None,
+) -> Regions:
+    """Colour region growing on points (n, 3) mm with colours (n, 3) (RGB levels).
+
+    1. Points closer than neighbour_mm whose colours differ by less than point_threshold
+       (Euclidean RGB) are in one region (connected components).
+    2. Neighbouring regions whose mean colours differ by less than region_threshold merge.
+    3. A region of fewer than min_points points joins the neighbouring region of at least
+       min_points with which it shares the most neighbour pairs; with none, it is dropped.
+    """
+    n = len(points_mm)
+    if n == 0:
+        return Regions(np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
+    if pairs is None:
+        pairs = radius_pairs(points_mm, neighbour_mm)
+    rgb = colors.astype(np.float32)
+    difference = np.take(rgb, pairs[:, 0].copy(), axis=0) - np.take(rgb, pairs[:, 1].copy(), axis=0)
+    similar = np.einsum("ij,ij->i", difference, difference) < point_threshold**2
+    count, labels = _components(n, pairs[similar])
+    # 2. merge regions of close mean colour
+    means, _ = _means(labels, count, rgb)
+    neighbours, _ = _region_pairs(labels, count, pairs)
+    gap = np.linalg.norm(means[neighbours[:, 0]] - means[neighbours[:, 1]], axis=1)
+    count, merged = _components(count, neighbours[gap < region_threshold])
+    labels = merged[labels]
+    # 3. small regions into their most connected large neighbour
+    sizes = np.bincount(labels, minlength=count)
+    neighbours, shared = _region_pairs(labels, count, pairs)
+    small = sizes < min_points
+    both = np.concatenate([neighbours, neighbours[:, ::-1]])
+    weight = np.concatenate([shared, shared]).astype(float)
+    into_large = small[both[:, 0]] & ~small[both[:, 1]]
+    target = np.where(small, -1, np.arange(count))
+    if into_large.any():
+        links = coo_matrix(
+            (weight[into_large], (both[into_large, 0], both[into_large, 1])), (count, count)
+        ).tocsr()
+        rows = np.flatnonzero(small & (links.getnnz(axis=1) > 0))
+        target[rows] = np.asarray(links[rows].argmax(axis=1)).ravel()
+    labels = target[labels]
+    # compact numbering of the regions that remain
+    kept, labels_kept = np.unique(labels[labels >= 0], return_inverse=True)
+    final = np.full(n, -1, dtype=np.int64)
+    final[labels >= 0] = labels_kept
+    means, sizes = _means(final[final >= 0], len(kept), rgb[final >= 0].astype(float))
+    return Regions(final, means, sizes)
+
+
+def segment_robot(
+    cloud: PointCloud,
+    robot_rgb: np.ndarray,
+    settings: VisionSettings = VisionSettings(),
+    pairs: np.ndarray | None = None,
+) -> Segmentation:
+    """Split a filtered cloud into robot X_r and objects X_o by colour region growing.
+
+    robot_rgb (3,): the robot's colour (given, or learn_robot_colour). A region whose mean
+    colour lies within settings.robot_colour_tolerance of it is robot; any other is object.
+    pairs (m, 2), optional: the cloud's point pairs at most region_neighbour_mm apart.
+    """
+    regions = grow_regions(
+        cloud.points_mm,
+        cloud.colors,
+        settings.region_neighbour_mm,
+        settings.point_colour_threshold,
+        settings.region_colour_threshold,
+        settings.min_region_points,
+        pairs,
+    )
+    distance = np.linalg.norm(regions.colors - np.asarray(robot_rgb, dtype=float), axis=1)
+    robot_regions = distance < settings.robot_colour_tolerance
+    labels = regions.labels
+    is_robot = np.zeros(len(cloud), dtype=bool)
+    is_robot[labels >= 0] = robot_regions[labels[labels >= 0]]
+    return Segmentation(
+        robot=cloud.subset(is_robot),
+        objects=cloud.subset((labels >= 0) & ~is_robot),
+        regions=regions,
+        robot_regions=robot_regions,
+    )
+
+
+def learn_robot_colour(
+    cloud: PointCloud, model_surface_points_mm: np.ndarray, max_distance_mm: float = 3.0,
+    min_points: int = 50,
+) -> np.ndarray:
+    """The robot's colour seen in a frame: (3,) float64 median RGB of the cloud's points within
+    max_distance_mm of the predicted robot surface.
+
+    model_surface_points_mm (k, 3): points on the model's current surface (its surface nodes,
+    and face centroids where the mesh is coarse). Use a frame where nothing touches the robot;
+    the median ignores the few object or table points that still come close. SensingError when
+    fewer than min_points points are near the model (robot not in view, or a wrong calibration).
+    """
+    surface = np.asarray(model_surface_points_mm, dtype=float).reshape(-1, 3)
+    if len(cloud) == 0 or len(surface) == 0:
+        raise SensingError("no point of the frame lies on the robot model: check that the "
+                           "robot is in view and the calibration belongs to this camera")
+    distance, _ = cKDTree(surface).query(cloud.points_mm, distance_upper_bound=max_distance_mm)
+    near = np.isfinite(distance)
+    if np.count_nonzero(near) < min_points:
+        raise SensingError(
+            f"only {np.count_nonzero(near)} points of the frame lie within {max_distance_mm} mm "
+            "of the robot model: check that the robot is in view and the calibration belongs "
+            "to this camera"
+        )
+    return np.median(cloud.colors[near].astype(float), axis=0)

@@ -1,0 +1,148 @@
+"""Thresholds of the vision stage, each with its default and the reason for it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+
+@dataclass(frozen=True)
+class VisionSettings:
+    """Every threshold of the vision stage (lengths in mm, colours in RGB levels 0-255).
+
+    Filtering (the paper's PassThrough, VoxelGrid, RadiusOutlier; its camera code's values):
+    voxel_mm               : 1.1, the VoxelGrid leaf. At 0.5-0.6 m a D415 pixel spans
+                             0.8-1.3 mm, so this keeps about one point per pixel footprint and
+                             mostly removes duplicates where the surface is steep.
+    outlier_radius_mm      : 5.0, RadiusOutlier radius.
+    outlier_min_neighbours : 20, points with fewer neighbours (itself excluded) within the
+                             radius are removed: a surface patch of radius 5 mm holds about 60
+                             points at 1.1 mm spacing, an isolated speckle a handful. 0 turns
+                             the filter off (region growing still drops isolated specks).
+    crop_margin_mm         : 20.0, the PassThrough box is the model's current bounds grown by
+                             this on every side: room for deformation the model has not yet
+                             followed and for the objects touching the robot.
+
+    Table removal (not in the paper; its figures show the robot on a table that would
+    otherwise become one large "object" touching the robot's base):
+    table_slab_mm          : 30.0, the table plane is fitted to points less than this above
+                             the model's lowest point (the robot stands on the table).
+    table_fit_mm           : 4.0, RANSAC inlier distance, about 2 sigma of D415 depth noise at
+                             0.6 m at 424x240 (1.8 mm) and 3 sigma at 640x480 (1.2 mm).
+    table_clearance_mm     : 8.0, points closer than this to the fitted plane (or below it)
+                             are table: over 4 sigma of depth noise, and still inside the
+                             Diamond's clamped base (the clamp reaches 47 mm above the table),
+                             so no robot point that matters is lost.
+    table_min_points       : 200, fewer points in the slab than this: no table in view, none
+                             removed (pipeline.process_frame fits the table on every third
+                             pixel row and column, and asks a ninth of this there).
+
+    Colour region growing (as PCL's RegionGrowingRGB):
+    region_neighbour_mm    : 3.0, two points are neighbours when closer than this: about two
+                             point spacings at 424x240 (1.6 mm at 0.5 m), so a surface stays
+                             connected under depth noise, while surfaces 3 mm apart do not.
+    point_colour_threshold : 30.0, neighbours join one region when their colours differ by
+                             less than this (Euclidean RGB): colour noise (2 levels per channel,
+                             so about 5 between two points) and smooth shading stay inside,
+                             edges between different paints (distance > 100) do not.
+    region_colour_threshold: 40.0, neighbouring regions whose mean colours differ by less are
+                             merged (PCL's region merging): one surface split by a shading
+                             gradient or a dark seam becomes one region again.
+    min_region_points      : 10, smaller regions merge into the neighbouring region they share
+                             most neighbour pairs with, or are dropped when isolated (PCL's
+                             minimum cluster size).
+    robot_colour_tolerance : 70.0, a region belongs to the robot when its mean colour is this
+                             close to the robot colour. Shading darkens a surface to 0.7 of its
+                             colour at grazing incidence ([40, 90, 210] -> [28, 63, 147] is at
+                             70); other paints in the sample scenes lie 170 or more away.
+
+    Contacts (Algorithm 2):
+    contact_radius_mm      : 4.0, r_search (the paper's camera code).
+    contact_min_neighbours : 3, n_neigh: an object point with MORE than this many robot points
+                             within r_search is a contact point.
+    cluster_tolerance_mm   : 5.0, Euclidean clustering distance (the paper's camera code).
+    cluster_min_points     : 1, smaller clusters are dropped. One is enough: a contact point
+                             already belongs to an object region of min_region_points that
+                             survived the outlier filter, and a probe pressing on a side the
+                             camera does not see leaves only one to five contact points at
+                             640x480 (the sample probe on the east elbow: one).
+    contact_exclusion_mm   : 5.0, contact points within this of the clamped region's box
+                             (given by the caller) are ignored: a clamp or fixture touching
+                             the base exerts no force the model can explain.
+
+    Feature matching (Algorithm 3):
+    match_line_mm          : 4.0, d_m: a feature is hidden when no robot point lies within
+                             this of its normal line (the paper's camera code).
+    match_limit_mm         : 20.0, d_l: a match further than this from its feature is taken as
+                             mis-segmented. A 0.6 N probe moves the Diamond's upper bar by
+                             16 mm, so smaller would reject real deformation.
+    match_search_mm        : 30.0, candidates are the robot points within this of the feature,
+                             not the whole cloud: the normal line through one arm crosses the
+                             other arms or the apex 50-200 mm away (the paper's Fig. 3 shows
+                             the search near the feature). Larger than d_l so that a match
+                             beyond d_l is seen and rejected rather than silently missed.
+
+    Other cameras:
+    scale_to_camera        : True, the neighbour counts above (outlier_min_neighbours,
+                             contact_min_neighbours) are those of a 640x480 D415, the paper's
+                             camera; pipeline.process_frame scales them to the frame's focal
+                             length with settings_for_camera. False uses them as given.
+    """
+
+    voxel_mm: float = 1.1
+    outlier_radius_mm: float = 5.0
+    outlier_min_neighbours: int = 20
+    crop_margin_mm: float = 20.0
+    table_slab_mm: float = 30.0
+    table_fit_mm: float = 4.0
+    table_clearance_mm: float = 8.0
+    table_min_points: int = 200
+    region_neighbour_mm: float = 3.0
+    point_colour_threshold: float = 30.0
+    region_colour_threshold: float = 40.0
+    min_region_points: int = 10
+    robot_colour_tolerance: float = 70.0
+    contact_radius_mm: float = 4.0
+    contact_min_neighbours: int = 3
+    cluster_tolerance_mm: float = 5.0
+    cluster_min_points: int = 1
+    contact_exclusion_mm: float = 5.0
+    match_line_mm: float = 4.0
+    match_limit_mm: float = 20.0
+    match_search_mm: float = 30.0
+    scale_to_camera: bool = True
+
+    def __post_init__(self) -> None:
+        for name, value in vars(self).items():
+            may_be_zero = ("contact_min_neighbours", "outlier_min_neighbours", "scale_to_camera")
+            if name not in may_be_zero and not value > 0:
+                raise ValueError(f"vision setting {name} must be positive, got {value}")
+        if self.contact_min_neighbours < 0 or self.outlier_min_neighbours < 0:
+            raise ValueError("vision settings contact_min_neighbours and outlier_min_neighbours "
+                             "must be >= 0")
+        if self.match_search_mm < self.match_limit_mm:
+            raise ValueError("vision setting match_search_mm must be at least match_limit_mm")
+
+
+# fx of the 640x480 D415 colour stream (69 degrees horizontal field of view), the resolution
+# of the paper's camera code for which outlier_min_neighbours = 20 was chosen.
+REFERENCE_FOCAL_PX = 465.6
+
+
+def settings_for_camera(settings: VisionSettings, focal_px: float) -> VisionSettings:
+    """The settings with their neighbour counts scaled to a camera of focal length focal_px.
+
+    Points per area of surface grow with the square of the focal length (pixels per mm), so a
+    424x240 stream (fx about 308) has under half the neighbours of a 640x480 one within the
+    same radius: with the 640x480 counts the outlier filter removes most of the robot and no
+    contact point has more than 3 robot neighbours. outlier_min_neighbours and
+    contact_min_neighbours are multiplied by (focal_px / REFERENCE_FOCAL_PX)^2 and rounded
+    (at least 1 and 0); the 640x480 D415 keeps the paper's values. The result has
+    scale_to_camera False.
+    """
+    scale = (focal_px / REFERENCE_FOCAL_PX) ** 2
+    return replace(
+        settings,
+        scale_to_camera=False,  # scaled once: process_frame must not scale these again
+        outlier_min_neighbours=max(1, round(settings.outlier_min_neighbours * scale)),
+        contact_min_neighbours=max(0, round(settings.contact_min_neighbours * scale)),
+    )

@@ -1,0 +1,118 @@
+"""`softforce sense` as a user runs it: the output files' contract and bad inputs."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from tests.cli_runner import assert_one_line_error, softforce
+from tests.conftest import ROOT, SAMPLE_ROBOT
+
+PROBES = ROOT / "sample_data" / "recordings" / "probes.mcap"
+CONTACTS_HEADER = "frame,time_s,contact,feature,x_mm,y_mm,z_mm,force_n,fx_n,fy_n,fz_n,residual_mm"
+FRAMES_HEADER = ("frame,time_s,status,contacts,points_kept,features_matched,features_hidden,"
+                 "fit_rms_mm,total_ms")
+
+
+def pose_calibration(truth_file: Path, folder: Path, **extra) -> Path:
+    """A pose-only calibration (DESIGN.md section 6 allows it) from a truth file's camera."""
+    truth = json.loads(truth_file.read_text())
+    path = folder / "pose.json"
+    path.write_text(json.dumps({"rotation": truth["camera"]["rotation"],
+                                "translation_mm": truth["camera"]["translation_mm"], **extra}))
+    return path
+
+
+@pytest.fixture(scope="module")
+def probes_run(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("sense")
+    calibration = pose_calibration(PROBES.with_suffix("").with_suffix(".truth.json"), folder)
+    result = softforce("sense", PROBES, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
+                       "-o", folder / "out")
+    return result, folder / "out", calibration
+
+
+def test_sense_writes_the_three_files_of_the_contract(probes_run):
+    result, out, _ = probes_run
+    assert result.returncode == 0, result.stderr
+    contacts = (out / "contacts.csv").read_text().splitlines()
+    frames = list(csv.reader((out / "frames.csv").read_text().splitlines()))
+    assert contacts[0] == CONTACTS_HEADER
+    assert ",".join(frames[0]).startswith(FRAMES_HEADER)
+    assert [row[0] for row in frames[1:]] == ["0", "1", "2", "3"]
+    document = json.loads((out / "sense.json").read_text())
+    assert {"recording", "robot", "calibration", "settings", "frames", "summary"} <= set(document)
+    assert [f["frame"] for f in document["frames"]] == [0, 1, 2, 3]
+    assert document["summary"]["frames"] == 4
+    for frame, row in zip(document["frames"], frames[1:], strict=True):
+        assert frame["status"] == row[2]
+        assert len(frame["contacts"]) == int(row[3])
+        assert set(frame["timings_ms"]) >= {"cloud", "segmentation", "matching"}
+    rows = list(csv.DictReader((out / "contacts.csv").read_text().splitlines()))
+    assert len(rows) == sum(len(f["contacts"]) for f in document["frames"])
+
+
+def test_sense_refuses_to_overwrite_without_force(probes_run):
+    _, out, calibration = probes_run
+    before = (out / "sense.json").read_text()
+    result = softforce("sense", PROBES, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
+                       "-o", out)
+    assert_one_line_error(result, "--force")
+    assert (out / "sense.json").read_text() == before
+
+
+@pytest.mark.parametrize(("args", "fragment"), [
+    (["--frames", "5"], "START:STOP"),
+    (["--frames", "3:1"], "START < STOP"),
+    (["--contact-point", "0,0,110"], "--direction"),
+    (["--contact-point", "0,0", "--direction", "0,0,-1"], "3 comma-separated numbers"),
+    (["--contact-point", "0,0,110", "--direction", "0,0,0"], "zero"),
+    (["--force-model", "spring"], "force_model"),
+])
+def test_bad_options_fail_with_one_line(probes_run, tmp_path, args, fragment):
+    _, _, calibration = probes_run
+    result = softforce("sense", PROBES, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
+                       "-o", tmp_path / "out", *args)
+    assert_one_line_error(result, fragment)
+    assert not (tmp_path / "out" / "sense.json").exists()
+
+
+def test_calibration_of_another_robot_is_refused(tmp_path):
+    calibration = pose_calibration(PROBES.with_suffix("").with_suffix(".truth.json"), tmp_path,
+                                   robot={"name": "trunk", "file": "trunk.toml"})
+    result = softforce("sense", PROBES, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
+                       "-o", tmp_path / "out")
+    assert_one_line_error(result, "'trunk'")
+
+
+def test_missing_recording_and_settings_fail_with_one_line(probes_run, tmp_path):
+    _, _, calibration = probes_run
+    missing = softforce("sense", tmp_path / "none.mcap", "--robot", SAMPLE_ROBOT,
+                        "--calibration", calibration, "-o", tmp_path / "out")
+    assert_one_line_error(missing, "none.mcap")
+    settings = tmp_path / "settings.toml"
+    settings.write_text("[vision]\nvoxel_mm = -1.0\n")
+    bad = softforce("sense", PROBES, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
+                    "-o", tmp_path / "out", "--settings", settings)
+    assert_one_line_error(bad, "voxel_mm")
+    settings.write_text("[vision]\nvoxel = 1.0\n")
+    unknown = softforce("sense", PROBES, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
+                        "-o", tmp_path / "out", "--settings", settings)
+    assert_one_line_error(unknown, "'voxel'")
+
+
+def test_recording_without_actuation_is_refused_when_the_cables_need_it(tmp_path):
+    import dataclasses
+
+    from softforce_cli.io.mcap_reader import iter_frames
+    from softforce_cli.io.mcap_writer import write_recording
+
+    bare = tmp_path / "bare.mcap"
+    write_recording((dataclasses.replace(f, actuation=None) for f in iter_frames(PROBES)), bare)
+    calibration = pose_calibration(PROBES.with_suffix("").with_suffix(".truth.json"), tmp_path)
+    result = softforce("sense", bare, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
+                       "-o", tmp_path / "out")
+    assert_one_line_error(result, "/robot/actuation")

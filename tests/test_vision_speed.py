@@ -1,0 +1,82 @@
+"""`make bench` only: the vision stage at the D415's 640x480 on a freshly simulated probes
+recording (about 30 s to simulate): speed per stage, and both probes found.
+
+Run alone with `.venv/bin/pytest -q -s -m bench tests/test_vision_speed.py`; it prints the
+median milliseconds of every stage (docs/vision.md quotes them).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from softforce_cli.calibration.rigid import RigidTransform
+from softforce_cli.io.mcap_reader import iter_frames
+from softforce_cli.sim.simulate import simulate
+from softforce_cli.vision.pipeline import STAGES, process_frame
+from softforce_cli.vision.settings import VisionSettings, settings_for_camera
+
+ROOT = Path(__file__).resolve().parents[1]
+REPEATS = 40
+
+
+@pytest.fixture(scope="module")
+def probes_640(tmp_path_factory):
+    source = (ROOT / "sample_data" / "scenarios" / "probes.toml").read_text()
+    robot = (ROOT / "sample_data" / "diamond_fine" / "diamond.toml").as_posix()
+    scenario = source.replace('"../diamond_fine/diamond.toml"', json.dumps(robot))
+    scenario = scenario.replace("width = 424", "width = 640").replace("height = 240",
+                                                                       "height = 480")
+    folder = tmp_path_factory.mktemp("vision_speed")
+    (folder / "probes640.toml").write_text(scenario)
+    result = simulate(folder / "probes640.toml", folder / "probes640.mcap")
+    truth = json.loads(result.truth.read_text())
+    return list(iter_frames(result.recording)), truth
+
+
+@pytest.mark.bench
+def test_vision_stage_speed_and_accuracy_at_640x480(probes_640, sample_robot):
+    frames, truth = probes_640
+    pose = RigidTransform(np.array(truth["camera"]["rotation"]),
+                          np.array(truth["camera"]["translation_mm"]))
+    assert frames[0].intrinsics.width == 640
+    settings = settings_for_camera(VisionSettings(), frames[0].intrinsics.fx)
+    assert settings.outlier_min_neighbours == 20  # the paper's values at this resolution
+    mesh = sample_robot.mesh
+    arguments = dict(
+        intrinsics=frames[0].intrinsics, robot_from_camera=pose, model_bounds_mm=mesh.bounds_mm,
+        feature_positions_mm=mesh.nodes_mm[sample_robot.feature_nodes],
+        feature_normals=sample_robot.feature_normals, robot_rgb=np.array([37, 82, 192]),
+        settings=settings, excluded_box_mm=np.array(sample_robot.config.fixed_boxes_mm[0]),
+    )
+    timings = {stage: [] for stage in (*STAGES, "total")}
+    wall, cpu = [], []
+    for _ in range(REPEATS):
+        for frame in frames:
+            start, start_cpu = time.perf_counter(), time.process_time()
+            result = process_frame(frame.depth_mm, frame.color, **arguments)
+            cpu.append(1e3 * (time.process_time() - start_cpu))
+            wall.append(1e3 * (time.perf_counter() - start))
+            for stage, ms in result.timings_ms.items():
+                timings[stage].append(ms)
+    medians = {stage: float(np.median(ms)) for stage, ms in timings.items()}
+    fastest = {stage: float(np.percentile(ms, 10)) for stage, ms in timings.items()}
+    print(f"\nvision stage, 640x480, {len(wall)} frames: median {np.median(wall):.1f} ms, "
+          f"10th-90th percentile {np.percentile(wall, 10):.1f}-{np.percentile(wall, 90):.1f} ms; "
+          f"CPU time median {np.median(cpu):.1f} ms")
+    for stage, ms in medians.items():
+        print(f"  {stage:13s} median {ms:6.2f} ms, 10th percentile {fastest[stage]:6.2f} ms")
+    # CPU time, not wall time: on this shared 2-core machine other jobs stretch the wall time
+    # two- to three-fold. 28-40 ms was measured with a load average of 7 (docs/vision.md);
+    # the bound catches a regression of half as much again, not the 30 fps budget.
+    assert np.median(cpu) < 60.0
+    # both probes of the last frame, the east one pressing on a side the camera cannot see
+    last = process_frame(frames[3].depth_mm, frames[3].color, **arguments)
+    probes_mm = np.array([c["point_mm"] for c in truth["frames"][3]["contacts"]])
+    distance = np.linalg.norm(last.contacts.centres_mm[:, None] - probes_mm[None], axis=2)
+    assert len(last.contacts) == 2
+    assert np.all(distance.min(axis=1) < 20.0) and np.all(distance.min(axis=0) < 20.0)
