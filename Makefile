@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.softforce-installed
 OUT := out
 
-.PHONY: setup demo test lint bench clean
+.PHONY: setup demo test lint bench fuzz clean
 
 setup: $(STAMP)
 
@@ -29,6 +29,11 @@ lint: setup
 bench: setup
 	$(BIN)/pytest -q -s -m bench -o addopts="-p no:dash"
 	$(BIN)/python benchmarks/run.py --output docs/benchmarks.md
+
+# The fuzz suites with SOFTFORCE_FUZZ_CASES inputs of each kind (default 1000, ~20 min).
+fuzz: setup
+	SOFTFORCE_FUZZ_CASES=$${SOFTFORCE_FUZZ_CASES:-1000} $(BIN)/pytest -q tests/test_fuzz_harness.py \
+		tests/test_fuzz_recordings.py tests/test_fuzz_inputs.py
 
 clean:
 	rm -rf $(OUT) .pytest_cache .ruff_cache

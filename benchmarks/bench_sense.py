@@ -18,7 +18,7 @@ from softforce_cli.sim.simulate import simulate
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "out" / "bench_sense"
 ROBOT = ROOT / "sample_data" / "diamond" / "diamond.toml"
-TRUTH_ROBOT = ROOT / "sample_data" / "diamond_fine" / "diamond.toml"
+TRUTH_ROBOT = ROOT / "sample_data" / "diamond_truth" / "diamond.toml"
 FRAMES_PER_STATE = 20
 
 SCENARIO = f"""name = "bench_sense"

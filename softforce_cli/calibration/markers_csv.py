@@ -30,9 +30,12 @@ def read_markers_csv(path: Path) -> Markers:
 
 def parse_markers_csv(text: str, where: str = "markers") -> Markers:
     """Markers from the CSV text (see the module docstring)."""
-    rows = [(number, row) for number, row in enumerate(csv.reader(io.StringIO(text)), start=1)
-            if row and any(cell.strip() for cell in row)
-            and not row[0].lstrip().startswith("#")]
+    try:
+        rows = [(number, row) for number, row in enumerate(csv.reader(io.StringIO(text)), start=1)
+                if row and any(cell.strip() for cell in row)
+                and not row[0].lstrip().startswith("#")]
+    except csv.Error as error:  # e.g. a field over the csv module's size limit
+        raise CalibrationError(f"{where}: not a marker CSV ({error})") from error
     if not rows:
         raise CalibrationError(f"{where}: no markers; expected a header "
                                f"`{','.join(HEADER)}` and one line per marker")

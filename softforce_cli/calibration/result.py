@@ -174,7 +174,8 @@ def result_from_dict(data: dict[str, Any], where: str = "calibration") -> Calibr
         if not np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-6) or np.linalg.det(
                 rotation) < 0:
             raise ValueError("rotation is not a proper rotation matrix")
-        actuation = data["actuation"]
+        # a pose from elsewhere (rotation and translation only) is a valid calibration
+        actuation = data.get("actuation", {"values": [], "control": "displacement"})
         values = np.array(actuation["values"], dtype=float)
         names = tuple(actuation.get("names", [f"cable{i}" for i in range(len(values))]))
         controls = tuple(actuation.get("controls", [actuation["control"]] * len(values)))
@@ -189,7 +190,7 @@ def result_from_dict(data: dict[str, Any], where: str = "calibration") -> Calibr
             actuation=values,
             tensions_n=np.array(actuation.get("tensions_n", [np.nan] * len(values)), float),
             slack=np.array(actuation.get("slack", [False] * len(values)), dtype=bool),
-            residual_rms_mm=float(data["residual_rms_mm"]),
+            residual_rms_mm=float(data.get("residual_rms_mm", "nan")),
             residual_history_mm=tuple(float(r) for r in data.get("residual_history_mm", [])),
             markers=tuple(
                 MarkerResidual(m["id"], np.array(m["observed_camera_mm"], float),
@@ -206,7 +207,8 @@ def result_from_dict(data: dict[str, Any], where: str = "calibration") -> Calibr
             warnings=tuple(data.get("warnings", [])),
             robust=bool(data.get("robust", False)),
         )
-    except (KeyError, TypeError, ValueError) as error:
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError) as error:
+        # AttributeError: a field that should be an object is a list, number or string
         missing = f"missing field {error}" if isinstance(error, KeyError) else str(error)
         raise CalibrationError(f"{where}: not a softforce calibration ({missing}); run "
                                "`softforce calibrate` to make one") from error
@@ -219,7 +221,7 @@ def read_calibration(path: Path) -> CalibrationResult:
         raise CalibrationError(f"calibration file {path} not found; run `softforce calibrate`")
     try:
         data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+    except (json.JSONDecodeError, UnicodeDecodeError, OSError, RecursionError) as error:
         raise CalibrationError(f"{path}: not valid JSON ({error})") from error
     if not isinstance(data, dict):
         raise CalibrationError(f"{path}: not a softforce calibration (expected a JSON object)")

@@ -73,12 +73,18 @@ def read_actuation_csv(path: Path) -> ActuationTimeline:
     path = Path(path)
     if not path.is_file():
         raise RecordingError(f"actuation file {path} does not exist")
-    with open(path, newline="") as handle:
-        rows = [
-            (number, row)
-            for number, row in enumerate(csv.reader(handle), start=1)
-            if row and any(cell.strip() for cell in row) and not row[0].lstrip().startswith("#")
-        ]
+    try:
+        with open(path, newline="") as handle:
+            rows = [
+                (number, row)
+                for number, row in enumerate(csv.reader(handle), start=1)
+                if row and any(cell.strip() for cell in row)
+                and not row[0].lstrip().startswith("#")
+            ]
+    except (OSError, UnicodeDecodeError, csv.Error) as error:
+        raise RecordingError(
+            f"cannot read actuation file {path} as CSV text ({error}); save it as UTF-8 CSV"
+        ) from error
     if not rows:
         raise RecordingError(f"actuation file {path} is empty; it needs a header and rows")
     (_, header), body = rows[0], rows[1:]
@@ -108,7 +114,7 @@ def with_actuation(frames: Iterable[RgbdFrame], timeline: ActuationTimeline) -> 
 def _clock_is_relative(path: Path, column: str) -> bool:
     if column not in CLOCK_COLUMNS:
         raise RecordingError(
-            f"{path}: the first column is '{column}'; name it 'time_s' (seconds since the first "
+            f"{path}: the first column is {column!r}; name it 'time_s' (seconds since the first "
             "frame) or 'unix_time_s' (seconds since 1970)"
         )
     return column == "time_s"
@@ -122,7 +128,7 @@ def _cables(path: Path, columns: list[str]) -> tuple[tuple[str, ...], str]:
         suffix = next((s for s in CONTROL_SUFFIXES if column.endswith(s)), None)
         if suffix is None or column == suffix:
             raise RecordingError(
-                f"{path}: column '{column}' should be a cable name ending in _mm "
+                f"{path}: column {column!r} should be a cable name ending in _mm "
                 "(displacement) or _n (force), e.g. north_mm"
             )
         names.append(column[: -len(suffix)])

@@ -36,10 +36,35 @@ def calibrate(
         "--iterations", help="I1: at most this many outer iterations (SVD + QP).")] = 40,
     inner: Annotated[int, typer.Option(
         "--inner", help="I2: at most this many FE updates after each QP.")] = 4,
+    material: Annotated[bool, typer.Option(
+        "--material", help="Fit Young's modulus from a recording with a known load (needs "
+        "--calibration, --recording, --load-point, --load-n); writes CALIB + material.")
+    ] = False,
+    calibration: Annotated[Path | None, typer.Option(
+        "--calibration", help="With --material: the pose calibration to extend.")] = None,
+    reference: Annotated[Path | None, typer.Option(
+        "--reference", help="With --material: a recording of the robot unloaded.")] = None,
+    load_point: Annotated[str | None, typer.Option(
+        "--load-point", help="With --material: X,Y,Z where the load acts (mm, robot at rest).")
+    ] = None,
+    load_n: Annotated[str | None, typer.Option(
+        "--load-n", help="With --material: FX,FY,FZ the load's force on the robot (N).")] = None,
+    frames: Annotated[str | None, typer.Option(
+        "--frames", help="With --material: the loaded frames START:STOP of --recording.")] = None,
+    reference_frames: Annotated[str | None, typer.Option(
+        "--reference-frames", help="With --material: the unloaded frames START:STOP of "
+        "--reference (or of --recording when --reference is not given).")] = None,
     json_output: JsonOption = False,
     force: ForceOption = False,
 ) -> None:
-    """Calibrate the camera-to-robot transform and the cables' inputs (paper Algorithm 1)."""
+    """Calibrate the camera-to-robot transform and the cables' inputs (paper Algorithm 1), or
+    with --material the robot's Young's modulus from a known load."""
+    if material:
+        from softforce_cli.cli.material_command import calibrate_material
+
+        calibrate_material(robot, output, calibration, recording, reference, load_point, load_n,
+                           frames, reference_frames, json_output, force)
+        return
     from softforce_cli.calibration.calibrate import CalibrationSettings
     from softforce_cli.calibration.result import result_to_dict, result_to_json
     from softforce_cli.calibration.robust import calibrate_checked

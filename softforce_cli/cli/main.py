@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import os
 import sys
+import warnings
 
 import typer
 from rich.console import Console
 from rich.markup import escape
 
 from softforce_cli import __version__
+from softforce_cli.cli.interrupt import install_signal_handlers, interrupted_exit_code
 from softforce_cli.errors import SoftforceError
 
 app = typer.Typer(
@@ -23,10 +25,13 @@ stderr = Console(stderr=True)
 
 
 def _register_commands() -> None:
+    if app.registered_groups:  # main() may run more than once in a process (tests)
+        return
     from softforce_cli.cli import (
         calibrate_command,
         model_commands,
         record_commands,
+        sense_command,
         simulate_command,
     )
 
@@ -34,6 +39,7 @@ def _register_commands() -> None:
     app.add_typer(record_commands.app, name="record")
     app.command("simulate")(simulate_command.simulate)
     app.command("calibrate")(calibrate_command.calibrate)
+    app.command("sense")(sense_command.sense)
 
 
 def _version(value: bool) -> None:
@@ -51,17 +57,35 @@ def _root(
     """An RGB-D camera and a finite element model as a force sensor for soft robots."""
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings (a damaged recording, skipped frames) as one yellow line on stderr each."""
+    text = " ".join(str(message).split())
+    stderr.print(f"[yellow]warning:[/] {escape(text)}", highlight=False, soft_wrap=True)
+
+
 def main() -> None:
     """Entry point: run the app; a SoftforceError becomes one red line and exit status 1.
 
     Usage errors are typer's (a usage line, exit status 2). Set SOFTFORCE_DEBUG=1 to see the
-    traceback of a SoftforceError instead.
+    traceback of a SoftforceError instead. SIGTERM stops a run like Ctrl-C (see interrupt.py)
+    and the exit status is 128 + the signal: 130 for Ctrl-C, 143 for SIGTERM.
     """
-    _register_commands()
+    install_signal_handlers()
+    if not os.environ.get("SOFTFORCE_DEBUG"):
+        warnings.showwarning = _show_warning
     try:
+        _register_commands()
         app()
     except SoftforceError as error:
         if os.environ.get("SOFTFORCE_DEBUG"):
             raise
-        stderr.print(f"[bold red]error:[/] {escape(str(error))}", highlight=False, soft_wrap=True)
+        message = " ".join(str(error).split())  # one line, whatever the message holds
+        stderr.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
         sys.exit(1)
+    except SystemExit as exit_:
+        # typer turns a KeyboardInterrupt (hence SIGTERM's Terminated) into exit status 130.
+        if exit_.code == 130:
+            sys.exit(interrupted_exit_code())
+        raise
+    except KeyboardInterrupt:  # one that escaped typer (while importing commands)
+        sys.exit(interrupted_exit_code())

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 from rich.table import Table
 
 from softforce_cli.cli.common import print_json, stderr, stdout
@@ -16,12 +17,12 @@ def calibrate_material(robot_file: Path, output: Path, calibration: Path | None,
                        load_n: str | None, frames: str | None, reference_frames: str | None,
                        json_output: bool, force: bool) -> None:
     from softforce_cli.calibration.material import KnownLoad, fit_young_modulus
-    from softforce_cli.calibration.material_inputs import load_case
+    from softforce_cli.calibration.material_inputs import static_frames
     from softforce_cli.calibration.result import read_calibration
+    from softforce_cli.estimation.settings import load_settings
     from softforce_cli.estimation.setup import parse_vector
     from softforce_cli.io.atomic import atomic_write_text, check_writable
     from softforce_cli.model.robot import load_robot
-    from softforce_cli.vision.settings import VisionSettings
 
     missing = [name for name, value in (("--calibration", calibration),
                                         ("--recording", recording),
@@ -36,17 +37,15 @@ def calibrate_material(robot_file: Path, output: Path, calibration: Path | None,
         raise CalibrationError(str(error)) from error
     robot = load_robot(robot_file)
     pose = read_calibration(calibration)
-    vision = VisionSettings()
-    with stderr.status("reading the loaded and reference states..."):
-        loaded = load_case(robot, pose.robot_from_camera, recording, frames, load, vision)
-        base = None
-        if reference is not None or reference_frames is not None:
-            base = load_case(robot, pose.robot_from_camera, reference or recording,
-                             reference_frames, None, vision)
+    with stderr.status("reading the loaded and reference frames..."):
+        loaded = static_frames(recording, frames)
+        reference = [] if reference is None and reference_frames is None else static_frames(
+            reference or recording, reference_frames)
     with stderr.status("fitting Young's modulus...") as status:
-        fit = fit_young_modulus(robot, loaded, base, vision,
-                                progress=lambda n: status.update(f"fitting Young's modulus: "
-                                                                 f"{n} FE evaluations"))
+        fit = fit_young_modulus(
+            robot, pose.robot_from_camera, loaded, reference, load, load_settings(None),
+            progress=lambda n, e: status.update(f"fitting Young's modulus: pass {n}, "
+                                                f"{e:.4f} MPa"))
     document = json.loads(Path(calibration).read_text())
     document["material"] = fit.to_dict()
     atomic_write_text(output, json.dumps(document, indent=2) + "\n", force=force)
@@ -54,14 +53,16 @@ def calibrate_material(robot_file: Path, output: Path, calibration: Path | None,
         print_json(document["material"])
     else:
         table = Table(title="material", title_justify="left")
-        for name in ("", "Young's modulus (MPa)", "95% interval", "residual RMS (mm)"):
+        for name in ("", "Young's modulus (MPa)", "95% interval", "sensed load (N)"):
             table.add_column(name, justify="right")
         table.add_row("robot file", f"{fit.nominal_young_modulus_mpa:.4f}", "",
-                      f"{fit.nominal_residual_rms_mm:.3f}")
-        table.add_row("fitted", f"{fit.young_modulus_mpa:.4f}",
-                      f"{fit.ci95_mpa[0]:.4f} to {fit.ci95_mpa[1]:.4f}",
-                      f"{fit.residual_rms_mm:.3f}")
+                      f"{fit.nominal_estimate_n:.4f}")
+        interval = "" if fit.ci95_mpa is None else \
+            f"{fit.ci95_mpa[0]:.4f} to {fit.ci95_mpa[1]:.4f}"
+        table.add_row("fitted", f"{fit.young_modulus_mpa:.4f}", interval,
+                      f"{np.mean(fit.estimates_n):.4f} (known {fit.load_n:.4f})")
         stdout.print(table)
-        stdout.print(f"{fit.features} feature points, element {fit.element}, law {fit.law}, "
-                     f"{fit.evaluations} FE evaluations")
+        stdout.print(f"{len(fit.estimates_n)} loaded frames{', tared' if fit.tared else ''}, "
+                     f"element {fit.element}, law {fit.law}, {fit.passes} passes, fit RMS "
+                     f"{fit.fit_rms_mm:.3f} mm")
     stderr.print(f"wrote [bold]{output}[/]")

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import enum
 import json
+import signal
 import time
 import warnings
 from pathlib import Path
@@ -15,10 +16,12 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from softforce_cli.camera.actuation_timeline import read_actuation_csv, with_actuation
+from softforce_cli.camera.live_source import record_live
 from softforce_cli.camera.realsense import (
     PRESETS,
     CaptureProgress,
@@ -26,6 +29,7 @@ from softforce_cli.camera.realsense import (
     iter_file_frames,
     iter_live_frames,
 )
+from softforce_cli.cli.interrupt import interrupted_exit_code, received_signal, signal_name
 from softforce_cli.errors import RecordingError
 from softforce_cli.io.atomic import check_writable
 from softforce_cli.io.mcap_reader import RecordingSummary, read_summary
@@ -102,24 +106,33 @@ def record(
     if timeline is not None:
         frames = with_actuation(frames, timeline)
     with display:
-        result = write_recording(
-            frames, output, force=force, metadata=metadata, stop_on_interrupt=True
-        )
+        if live:  # written off the capture thread: no frame is dropped while zstd compresses
+            result = record_live(
+                frames, output, force=force, metadata=metadata, stop_on_interrupt=True
+            )
+        else:
+            result = write_recording(
+                frames, output, force=force, metadata=metadata, stop_on_interrupt=True
+            )
+    queue_dropped = result.stats.dropped if live else 0  # the writer's queue overflowed
     if result.frames == 0:
         if result.interrupted:
             raise KeyboardInterrupt
         source = "the RealSense" if live else str(from_file)
         raise RecordingError(f"no frame was recorded from {source}; {output} was not written")
     summary = _read_with_warnings(output)
-    note = " (stopped by Ctrl-C)" if result.interrupted else ""
-    Console(soft_wrap=True).print(
+    note = f" (stopped by {signal_name()})" if result.interrupted else ""
+    # Ctrl-C is how a live recording ends; a file's conversion, or SIGTERM, cut a run short:
+    # then the line goes to stderr with the run's other diagnostics and the status is non-zero.
+    cut_short = result.interrupted and (not live or received_signal() == signal.SIGTERM)
+    Console(soft_wrap=True, stderr=cut_short).print(
         f"wrote {output}: {summary.frame_count} frames, {summary.duration_s:.2f} s, "
         f"{summary.intrinsics.width}x{summary.intrinsics.height}, "
-        f"{display.dropped} dropped{note}",
+        f"{display.dropped + queue_dropped} dropped{note}",
         highlight=False,
     )
-    if result.interrupted and not live:  # Ctrl-C is how a live recording ends; not a file's
-        raise typer.Exit(130)
+    if cut_short:
+        raise typer.Exit(interrupted_exit_code())
 
 
 @app.command("info")
@@ -141,10 +154,15 @@ def _read_with_warnings(path: Path) -> RecordingSummary:
     """read_summary, with its warnings as one yellow line each on stderr."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        summary = read_summary(path)
-    for warning in caught:
-        stderr.print(f"[yellow]warning:[/] {warning.message}", highlight=False, soft_wrap=True)
-    return summary
+        try:
+            return read_summary(path)
+        finally:  # also before an error: what was lost explains it
+            for warning in caught:
+                stderr.print(
+                    f"[yellow]warning:[/] {escape(str(warning.message))}",
+                    highlight=False,
+                    soft_wrap=True,
+                )
 
 
 def _summary_table(summary: RecordingSummary) -> Table:

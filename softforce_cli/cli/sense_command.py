@@ -44,6 +44,9 @@ def sense(
     record: Annotated[Path | None, typer.Option(
         "--record", help="With --live: also keep every camera frame in this MCAP recording.",
         dir_okay=False)] = None,
+    tare: Annotated[int, typer.Option(
+        "--tare", help="Take the first N frames as free of external force and zero the "
+        "observations on them (the cables' inputs should not change much after).")] = 0,
     robot_rgb: Annotated[str | None, typer.Option(
         "--robot-rgb", help="R,G,B of the robot (0-255); default: learned on the first frame.")
     ] = None,
@@ -64,6 +67,7 @@ def sense(
         recording=recording, robot=robot, calibration=calibration, output=output,
         frames=frames, contact_point=contact_point, direction=direction,
         settings_file=settings_file, overrides=overrides, robot_rgb=robot_rgb, record=record,
+        tare_frames=tare,
         force=force,
     )
     keep_freed_memory()

@@ -33,3 +33,7 @@ def simulate(
         f"wrote {result.frames} frames to [bold]{result.recording}[/] and the ground "
         f"truth to [bold]{result.truth}[/]{note}"
     )
+    if result.interrupted:
+        from softforce_cli.cli.interrupt import interrupted_exit_code
+
+        raise typer.Exit(interrupted_exit_code())

@@ -31,9 +31,9 @@ from softforce_cli.model.mesh import vertex_normals
 from softforce_cli.model.robot import Robot
 from softforce_cli.vision.contacts import nearest_features
 from softforce_cli.vision.feature_matching import FeatureMatches, match_features
-from softforce_cli.vision.filters import crop_box_from_bounds, voxel_downsample
+from softforce_cli.vision.filters import crop_box_from_bounds
 from softforce_cli.vision.pipeline import VisionResult, process_frame
-from softforce_cli.vision.point_cloud import PointCloud, cloud_from_frame
+from softforce_cli.vision.point_cloud import cloud_from_frame
 from softforce_cli.vision.segmentation import learn_robot_colour
 from softforce_cli.vision.settings import VisionSettings
 
@@ -87,6 +87,7 @@ class ForceSensor:
         settings: SenseSettings,
         known_contact: KnownContact | None = None,
         robot_rgb: np.ndarray | None = None,
+        tare_frames: int = 0,
     ) -> None:
         self.robot = robot
         self.model = robot.fe_model
@@ -102,6 +103,12 @@ class ForceSensor:
         self.tensions = start.cable_tensions_n
         self.factorization = None
         self.tracker = ContactTracker(settings.estimation.track_radius_mm)
+        # taring: the first tare_frames processed frames are taken as free of external force,
+        # and each feature's mean normal offset there (observed - model) is subtracted from
+        # its later observations, as a force sensor is zeroed before use
+        self.tare_left = tare_frames
+        self._tare_sum = np.zeros(len(robot.feature_nodes))
+        self._tare_count = np.zeros(len(robot.feature_nodes))
         clamped = robot.mesh.nodes_mm[robot.fixed_nodes]
         self.clamped_box = np.r_[clamped.min(axis=0), clamped.max(axis=0)]
         if known_contact is not None:
@@ -130,7 +137,8 @@ class ForceSensor:
             return FrameEstimate(index, time_s, "nodepth", timings_ms=timings, **counts)
         if len(segmentation.robot) < self.settings.estimation.min_robot_points:
             return FrameEstimate(index, time_s, "norobot", timings_ms=timings, **counts)
-        contact_nodes = self._contact_nodes(vision)
+        taring = self.tare_left > 0
+        contact_nodes = np.zeros(0, np.int64) if taring else self._contact_nodes(vision)
         clock = _Clock(timings)
         saved = (self.positions, self.tensions)
         outcome: Update | None = None
@@ -140,7 +148,7 @@ class ForceSensor:
                 if outcome is not None:
                     matches = self._match(segmentation.robot.points_mm)
                     clock.lap("matching")
-                update = self.update(matches, contact_nodes, clock)
+                update = self.update(matches, contact_nodes, clock, taring)
                 if update is None:
                     break
                 outcome = update
@@ -150,11 +158,15 @@ class ForceSensor:
             return FrameEstimate(index, time_s, "solver", timings_ms=timings, **counts)
         if outcome is None:
             return FrameEstimate(index, time_s, "fewmatches", timings_ms=timings, **counts)
-        contacts = self._contacts(outcome)
+        status = "ok"
+        if taring:
+            self._add_tare(outcome)
+            status = "tare"
+        contacts = () if taring else self._contacts(outcome)
         clock.lap("update")
         matches = outcome.matches
         return FrameEstimate(
-            index, time_s, "ok", contacts, **counts,
+            index, time_s, status, contacts, **counts,
             features_matched=int(matches.matched.sum()),
             features_hidden=int(matches.hidden.sum()),
             features_rejected=int(matches.rejected.sum()),
@@ -193,10 +205,25 @@ class ForceSensor:
         _, nearest = cKDTree(self.positions[surface]).query(vision.contacts.centres_mm)
         return np.unique(surface[np.asarray(nearest, dtype=np.int64)])
 
-    def _columns(self, contact_nodes: np.ndarray) -> _Columns:
+    @property
+    def tare_offsets_mm(self) -> np.ndarray:
+        """(p,) mean observed-minus-model normal offset of each feature over the tare frames
+        (0 where a feature was never matched, or without taring)."""
+        return np.divide(self._tare_sum, self._tare_count, out=np.zeros_like(self._tare_sum),
+                         where=self._tare_count > 0)
+
+    def _add_tare(self, update: Update) -> None:
+        matched = update.matches.matched
+        positions, normals = self.feature_geometry()
+        model = np.einsum("pi,pi->p", positions, normals)
+        self._tare_sum[matched] += update.matches.normal_mm[matched] - model[matched]
+        self._tare_count[matched] += 1
+        self.tare_left -= 1
+
+    def _columns(self, contact_nodes: np.ndarray, taring: bool = False) -> _Columns:
         """Force columns for the contacts: along the inward normal (one push each), the known
-        direction, or three free axes per contact ("3d")."""
-        if self.known_contact is not None:
+        direction, or three free axes per contact ("3d"); none while taring."""
+        if self.known_contact is not None and not taring:
             direction = np.asarray(self.known_contact.direction, dtype=float)[None]
             return _Columns(self.known_points, direction, np.ones(1, bool), (np.arange(1),))
         c = len(contact_nodes)
@@ -211,13 +238,13 @@ class ForceSensor:
                         np.ones(c, bool), groups)
 
     def update(self, matches: FeatureMatches, contact_nodes: np.ndarray,
-               clock: _Clock | None = None) -> Update | None:
+               clock: _Clock | None = None, taring: bool = False) -> Update | None:
         """One FE update (eq. 10-14, then eq. 6) from feature matches at the current
         configuration, with contact forces at the mesh nodes contact_nodes (c,) (or at the
         known contact); None when too few features match for the unknowns."""
         clock = clock or _Clock({})
         _, normals = self.feature_geometry()
-        columns = self._columns(contact_nodes)
+        columns = self._columns(contact_nodes, taring)
         matched = matches.matched
         unknowns = len(self.controls) + len(columns.directions)
         if matched.sum() < max(self.settings.estimation.min_matched, unknowns + 1):
@@ -233,7 +260,8 @@ class ForceSensor:
         clock.lap("fe")
         problem = IntensityProblem(
             projected.W_ea, projected.W_ef, projected.delta_e_free,
-            matches.normal_mm[matched], projected.W_aa, projected.W_af,
+            matches.normal_mm[matched] - (0.0 if taring else self.tare_offsets_mm[matched]),
+            projected.W_aa, projected.W_af,
             projected.delta_a_free, columns.unilateral,
         )
         solution = solve_intensities(problem, self.controls, self.actuation,
@@ -291,32 +319,6 @@ def learned_robot_colour(frame: RgbdFrame, robot_from_camera: RigidTransform,
     cloud = cloud_from_frame(frame.depth_mm, frame.color, frame.intrinsics, robot_from_camera,
                              crop_box_from_bounds(bounds, vision.crop_margin_mm))
     return np.asarray(learn_robot_colour(cloud, nodes_mm[surface_nodes]), dtype=float)
-
-
-def observed_robot_points(frames: list[RgbdFrame], robot_from_camera: RigidTransform,
-                          robot: Robot, vision: VisionSettings) -> np.ndarray:
-    """(k, 3) mm robot points of a static state seen in several frames, robot frame: each
-    frame through the vision stage at the rest shape, pooled and voxel-averaged (which
-    averages the frames' depth noise)."""
-    nodes = robot.rest_nodes_mm[: robot.mesh.node_count]
-    bounds = np.array([nodes.min(axis=0), nodes.max(axis=0)])
-    positions = nodes[robot.feature_nodes]
-    normals = robot.feature_normals
-    rgb = None
-    pooled = []
-    for frame in frames:
-        if rgb is None:
-            rgb = learned_robot_colour(frame, robot_from_camera, nodes, robot.mesh.surface_nodes,
-                                       vision)
-        result = process_frame(frame.depth_mm, frame.color, frame.intrinsics, robot_from_camera,
-                               bounds, positions, normals, rgb, vision)
-        pooled.append(result.segmentation.robot)
-    points = np.concatenate([c.points_mm for c in pooled])
-    if not len(points):
-        raise SensingError("no robot point in the selected frames: is the robot in view and "
-                           "the calibration right?")
-    colors = np.concatenate([c.colors for c in pooled])
-    return voxel_downsample(PointCloud(points, colors), vision.voxel_mm).points_mm
 
 
 def check_actuation(robot: Robot, frame: RgbdFrame, source: str) -> None:

@@ -37,6 +37,7 @@ class SenseInputs:
     overrides: dict[str, Any] = field(default_factory=dict)
     robot_rgb: str | None = None
     record: Path | None = None
+    tare_frames: int = 0
     force: bool = False
 
 
@@ -95,10 +96,14 @@ def prepare_sensing(inputs: SenseInputs, live: bool = False) -> PreparedSensing:
     except BaseException:
         resources.close()
         raise
-    # a pose-only calibration: the FE model starts from the first frame's actuation
-    start = calibration.actuation if len(calibration.actuation) else (
-        first[1].actuation.values if first[1].actuation is not None else np.zeros(0))
-    sensor = ForceSensor(robot, calibration.robot_from_camera, start, settings, known, rgb)
+    # the FE model starts from the recording's own first inputs; the calibration's describe
+    # the robot when it was calibrated (and a pose-only calibration has none)
+    start = (first[1].actuation.values if first[1].actuation is not None
+             else calibration.actuation)
+    if inputs.tare_frames < 0:
+        raise SensingError("--tare must be a number of frames >= 0")
+    sensor = ForceSensor(robot, calibration.robot_from_camera, start, settings, known, rgb,
+                         inputs.tare_frames)
     header = {
         "format": "softforce.sense",
         "version": 1,
@@ -116,6 +121,7 @@ def prepare_sensing(inputs: SenseInputs, live: bool = False) -> PreparedSensing:
             "rest_point_mm": known.rest_point_mm.tolist(),
             "direction": known.direction.tolist()},
         "features": len(robot.feature_nodes),
+        "tare_frames": inputs.tare_frames,
     }
     json.dumps(header)  # fail here, not mid-run, on a value JSON cannot hold
     remaining = None if count is None else max(
@@ -150,8 +156,7 @@ def _frame_source(inputs: SenseInputs, live: bool, resources: contextlib.ExitSta
         return frame_range.select(source.latest()), None, "live RealSense"
     if inputs.record is not None:
         raise SensingError("--record keeps the frames of --live; a recording is already kept")
-    from softforce_cli.io.mcap_reader import iter_frames, read_summary
+    from softforce_cli.io.mcap_reader import indexed_frame_count, iter_frames
 
     path = Path(inputs.recording)
-    summary = read_summary(path)
-    return frame_range.select(iter_frames(path)), summary.frame_count, str(path)
+    return frame_range.select(iter_frames(path)), indexed_frame_count(path), str(path)

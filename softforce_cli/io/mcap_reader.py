@@ -1,17 +1,16 @@
-"""Lazy reading of RGB-D recordings: RgbdFrames one at a time, and a summary from the index.
+"""Lazy reading of RGB-D recordings: RgbdFrames one at a time, and a summary of them.
 
 Frames are the groups of messages that share a log time (DESIGN.md section 5). A finished
 recording is read through its chunk index in log-time order, one chunk at a time, so memory does
 not grow with the recording's length. A recording without a summary section (cut short by a
-crash or a full disk) is scanned from the start instead: every frame before the damage is
-returned, and a RecordingWarning says where reading stopped. Topics other than softforce's are
-ignored.
+crash or a full disk) or with a damaged one is scanned from the start instead. Either way a
+damaged chunk (mcap_chunks.py) costs only the frames it holds: they are skipped, counted in a
+RecordingWarning, and every other frame is returned. Topics other than softforce's are ignored.
 """
 
 from __future__ import annotations
 
 import contextlib
-import struct
 import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -19,11 +18,7 @@ from pathlib import Path
 from typing import BinaryIO
 
 import numpy as np
-import zstandard
-from mcap.exceptions import McapError
-from mcap.reader import SeekingReader
 from mcap.records import Channel, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
 from mcap.summary import Summary
 from mcap.writer import MCAP0_MAGIC
 
@@ -31,10 +26,19 @@ from softforce_cli.camera.frame import RgbdFrame
 from softforce_cli.camera.intrinsics import CameraIntrinsics
 from softforce_cli.errors import RecordingError
 from softforce_cli.io import recording_format as fmt
+from softforce_cli.io.mcap_chunks import (
+    ChunkTable,
+    Damage,
+    RecordingWarning,
+    file_size,
+    indexed_messages,
+    indexed_metadata,
+    salvaged_summary,
+    trusted_summary,
+)
+from softforce_cli.io.mcap_scan import ChunkFinder, scanned_records
 
-# What a damaged file raises inside the mcap library: short reads, bad lengths, CRC mismatches,
-# undecodable chunk data.
-_DAMAGE_ERRORS = (McapError, struct.error, ValueError, EOFError, OSError, zstandard.ZstdError)
+__all__ = ["RecordingSummary", "RecordingWarning", "TopicSummary", "iter_frames", "read_summary"]
 
 _EXPECTED_SCHEMAS = {
     fmt.COLOR_TOPIC: ("protobuf", "foxglove.RawImage"),
@@ -43,10 +47,6 @@ _EXPECTED_SCHEMAS = {
     fmt.ACTUATION_TOPIC: ("json", None),
     fmt.MARKERS_TOPIC: ("json", None),
 }
-
-
-class RecordingWarning(UserWarning):
-    """A recording was read only in part: truncated, damaged, or with incomplete frames."""
 
 
 @dataclass(frozen=True)
@@ -118,45 +118,85 @@ def iter_frames(path: Path) -> Iterator[RgbdFrame]:
 
     Raises RecordingError for a missing file, a file that is not MCAP, a recording without the
     colour, depth or camera_info topic, and frames whose depth and colour sizes differ. Warns
-    (RecordingWarning) when the file is truncated or frames are incomplete.
+    (RecordingWarning) when the file is truncated or damaged (the frames of damaged chunks are
+    skipped and counted, every other frame is yielded) or frames are incomplete.
     """
-    with open_recording(path) as (stream, reader, summary):
-        if summary is not None:
-            channels = check_channels(path, summary.channels, summary.schemas)
-            messages = indexed_messages(path, reader, channels)
-        else:
-            messages = scanned_messages(path, stream, {})
-        yield from frames_from_messages(path, messages)
+    with open_recording(path) as recording:
+        yield from frames_from_messages(path, recording_messages(recording, {}))
+
+
+@dataclass
+class OpenRecording:
+    """An MCAP file opened for reading: its trusted summary (None: scan it) and its damage."""
+
+    path: Path
+    stream: BinaryIO
+    size: int
+    summary: Summary | None
+    chunks: ChunkTable
+    index_state: str  # "" (indexed), "no index", "damaged index" or "unchunked"
+    damage: Damage
 
 
 @contextlib.contextmanager
-def open_recording(path: Path) -> Iterator[tuple[BinaryIO, SeekingReader, Summary | None]]:
-    """Open `path` and check it is MCAP; yield (stream, its reader, its Summary or None)."""
+def open_recording(path: Path) -> Iterator[OpenRecording]:
+    """Open `path`, check it is MCAP and whether its index can be trusted.
+
+    An OSError while reading (a failing disk, a vanished network share) becomes a
+    RecordingError naming the file.
+    """
     path = Path(path)
     if not path.is_file():
         state = "is a directory" if path.is_dir() else "does not exist"
         raise RecordingError(f"recording {path} {state}")
-    with open(path, "rb") as stream:
-        if stream.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
-            raise RecordingError(
-                f"{path} is not an MCAP file (wrong magic bytes); record one with "
-                "`softforce record` or `softforce simulate`"
-            )
-        stream.seek(0)
-        reader = SeekingReader(stream)
-        try:
-            summary = reader.get_summary()
-        except _DAMAGE_ERRORS:
-            summary = None
-        if summary is not None and not summary.chunk_indexes:
-            summary = None  # an unchunked file: scanning is the lazy way to read it
-        if summary is None:
-            warnings.warn(
-                f"{path} has no index (was the recording cut short?); reading it from the start",
-                RecordingWarning,
-                stacklevel=4,
-            )
-        yield stream, reader, summary
+    try:
+        with open(path, "rb") as stream:
+            if stream.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
+                raise RecordingError(
+                    f"{path} is not an MCAP file (wrong magic bytes); record one with "
+                    "`softforce record` or `softforce simulate`"
+                )
+            size = file_size(stream)
+            summary, chunks, state = trusted_summary(stream, size)
+            if summary is not None and not chunks:
+                summary, state = None, "unchunked"  # scanning is the lazy way to read it
+            if state in ("no index", "damaged index"):
+                why = (
+                    "has no index (was the recording cut short?)"
+                    if state == "no index"
+                    else "has a damaged index (its CRC does not match)"
+                )
+                warnings.warn(
+                    f"{path} {why}; reading it from the start", RecordingWarning, stacklevel=4
+                )
+            yield OpenRecording(path, stream, size, summary, chunks, state, Damage(path))
+    except OSError as error:
+        raise RecordingError(
+            f"cannot read {path} ({error.strerror or error}); check the file and the disk"
+        ) from error
+
+
+def recording_messages(
+    recording: OpenRecording, metadata: dict[str, dict[str, str]]
+) -> Iterator[tuple[str, int, bytes]]:
+    """(topic, log_time, data) of softforce topics, in log-time order when indexed.
+
+    Metadata records are stored into `metadata`. Damage is reported as one RecordingWarning
+    once the messages are exhausted.
+    """
+    stream, size, damage = recording.stream, recording.size, recording.damage
+    if recording.summary is not None:
+        summary = recording.summary
+        channels = check_channels(recording.path, summary.channels, summary.schemas)
+        metadata.update(indexed_metadata(stream, size, summary, damage))
+        finder = ChunkFinder(stream, size)
+        for message in indexed_messages(
+            stream, size, recording.chunks, set(channels), damage, finder
+        ):
+            yield channels[message.channel_id].topic, message.log_time, message.data
+    else:
+        yield from _scanned_messages(recording, metadata)
+    damage.warn()
 
 
 def check_channels(
@@ -187,55 +227,39 @@ def _check_schema(path: Path, channel: Channel, schema: Schema | None) -> None:
         )
 
 
-def indexed_messages(
-    path: Path, reader: SeekingReader, channels: dict[int, Channel]
+def _scanned_messages(
+    recording: OpenRecording, metadata: dict[str, dict[str, str]]
 ) -> Iterator[tuple[str, int, bytes]]:
-    """(topic, log_time, data) of softforce topics in log-time order, chunk by chunk."""
-    topics = [ch.topic for ch in channels.values()]
-    try:
-        for _, channel, message in reader.iter_messages(topics=topics, log_time_order=True):
-            yield channel.topic, message.log_time, message.data
-    except _DAMAGE_ERRORS as error:
-        _warn_damage(path, error)
-
-
-def scanned_messages(
-    path: Path, stream: BinaryIO, metadata: dict[str, dict[str, str]]
-) -> Iterator[tuple[str, int, bytes]]:
-    """(topic, log_time, data) of softforce topics in file order, read up to any damage.
-
-    Metadata records met on the way are stored into `metadata`.
-    """
-    channels: dict[int, Channel] = {}
+    """Messages in file order, read past damaged chunks; metadata stored into `metadata`."""
+    path = recording.path
     schemas: dict[int, Schema] = {}
-    stream.seek(0)
-    try:
-        for record in StreamReader(stream, skip_magic=False).records:
-            if isinstance(record, Schema):
-                schemas[record.id] = record
-            elif isinstance(record, Channel) and record.topic in _EXPECTED_SCHEMAS:
-                if record.id not in channels:
-                    _check_schema(path, record, schemas.get(record.schema_id))
-                channels[record.id] = record
-            elif isinstance(record, Message) and record.channel_id in channels:
-                yield channels[record.channel_id].topic, record.log_time, record.data
-            elif isinstance(record, Metadata):
-                metadata[record.name] = dict(record.metadata)
-    except _DAMAGE_ERRORS as error:
-        _warn_damage(path, error)
+    channels: dict[int, Channel] = {}
+    if recording.index_state == "damaged index":
+        # Channels are defined once, in the first chunk; if that chunk is the damaged one, the
+        # copies in the summary section may still name the channels of the later chunks.
+        salvaged = salvaged_summary(recording.stream, recording.size)
+        schemas.update(salvaged.schemas)
+        for channel in salvaged.channels.values():
+            if channel.topic in _EXPECTED_SCHEMAS:
+                channels[channel.id] = channel
+    for record in scanned_records(recording.stream, recording.size, recording.damage):
+        if isinstance(record, Schema):
+            schemas[record.id] = record
+        elif isinstance(record, Channel) and record.topic in _EXPECTED_SCHEMAS:
+            _check_schema(path, record, schemas.get(record.schema_id))
+            channels[record.id] = record
+        elif isinstance(record, Message) and record.channel_id in channels:
+            yield channels[record.channel_id].topic, record.log_time, record.data
+        elif isinstance(record, Metadata):
+            metadata[record.name] = dict(record.metadata)
     present = {ch.topic for ch in channels.values()}
     for topic in fmt.REQUIRED_TOPICS:
         if topic not in present:
-            raise RecordingError(f"{path} has no {topic} topic (in its readable part)")
-
-
-def _warn_damage(path: Path, error: BaseException) -> None:
-    detail = f"{type(error).__name__}: {error}" if str(error) else type(error).__name__
-    warnings.warn(
-        f"{path} is damaged or truncated ({detail}); read the frames before the damage",
-        RecordingWarning,
-        stacklevel=4,
-    )
+            recording.damage.warn()
+            raise RecordingError(
+                f"{path} has no {topic} topic (in its readable part); a softforce recording "
+                f"needs {', '.join(fmt.REQUIRED_TOPICS)}"
+            )
 
 
 def frames_from_messages(
@@ -264,6 +288,8 @@ class _FrameAssembler:
         self.intrinsics: CameraIntrinsics | None = None
         self.frames = 0
         self.incomplete = 0
+        self.out_of_order = 0
+        self.last_time_ns: int | None = None
 
     def assemble(self, time_ns: int, parts: dict[str, bytes]) -> RgbdFrame | None:
         where = f"{self.path} at log time {time_ns} ns"
@@ -272,6 +298,10 @@ class _FrameAssembler:
         if fmt.COLOR_TOPIC not in parts or fmt.DEPTH_TOPIC not in parts or not self.intrinsics:
             self.incomplete += 1
             return None
+        if self.last_time_ns is not None and time_ns <= self.last_time_ns:
+            self.out_of_order += 1  # a repeated or misplaced chunk of a damaged file
+            return None
+        self.last_time_ns = time_ns
         color = fmt.decode_color(parts[fmt.COLOR_TOPIC], f"colour image of {where}")
         depth = fmt.decode_depth(parts[fmt.DEPTH_TOPIC], f"depth image of {where}")
         _check_sizes(where, color, depth, self.intrinsics)
@@ -294,10 +324,21 @@ class _FrameAssembler:
                 "depth image and camera_info together (softforce logs all messages of a "
                 "frame at the same time)"
             )
+        if not self.frames:
+            raise RecordingError(
+                f"{self.path} holds no readable frame; record it again or copy it anew"
+            )
         if self.incomplete:
             warnings.warn(
                 f"{self.path}: skipped {self.incomplete} incomplete frame(s) lacking colour, "
                 "depth or camera_info",
+                RecordingWarning,
+                stacklevel=3,
+            )
+        if self.out_of_order:
+            warnings.warn(
+                f"{self.path}: skipped {self.out_of_order} frame(s) whose time repeats or goes "
+                "back (a damaged file's misplaced chunks)",
                 RecordingWarning,
                 stacklevel=3,
             )
@@ -320,59 +361,43 @@ def _check_sizes(
 
 
 def read_summary(path: Path) -> RecordingSummary:
-    """Summarize the recording `path` from its summary section (a scan when it has none)."""
-    with open_recording(path) as (stream, reader, summary):
+    """Summarize the recording `path`: its index, checked by reading every frame once.
+
+    The frame count is that of the frames iter_frames yields (complete and readable), so that
+    a damaged chunk shows in the count, and is warned about, here too.
+    """
+    with open_recording(path) as recording:
+        metadata: dict[str, dict[str, str]] = {}
+        first: RgbdFrame | None = None
+        end_ns, count = 0, 0
+        for frame in frames_from_messages(path, recording_messages(recording, metadata)):
+            first = first or frame
+            end_ns, count = frame.time_ns, count + 1
+        if first is None:
+            raise RecordingError(f"{path} holds no readable frame")
+        summary = recording.summary
         if summary is not None:
-            return _summary_from_index(path, reader, summary)
-        return _summary_from_scan(path, stream)
-
-
-def _summary_from_index(path: Path, reader: SeekingReader, summary: Summary) -> RecordingSummary:
-    channels = check_channels(path, summary.channels, summary.schemas)
-    counts = summary.statistics.channel_message_counts if summary.statistics else {}
-    schemas = {sid: schema.name for sid, schema in summary.schemas.items()}
-    topics = tuple(
-        TopicSummary(ch.topic, schemas.get(ch.schema_id, ""), ch.message_encoding, counts[cid])
-        for cid, ch in sorted(summary.channels.items())
-    )
-    by_topic = {t.topic: t.message_count for t in topics}
-    metadata = {record.name: dict(record.metadata) for record in reader.iter_metadata()}
-    first = _first_frame(path, indexed_messages(path, reader, channels))
-    last = reader.iter_messages(topics=[fmt.COLOR_TOPIC], log_time_order=True, reverse=True)
-    end_ns = next((message.log_time for _, _, message in last), first.time_ns)
-    frame_count = min(by_topic[topic] for topic in fmt.REQUIRED_TOPICS)
-    return _make_summary(path, first, end_ns, frame_count, topics, metadata, indexed=True)
-
-
-def _summary_from_scan(path: Path, stream: BinaryIO) -> RecordingSummary:
-    """Summary of an unindexed recording: one pass over every readable frame."""
-    metadata: dict[str, dict[str, str]] = {}
-    first: RgbdFrame | None = None
-    end_ns, count = 0, 0
-    for frame in frames_from_messages(path, scanned_messages(path, stream, metadata)):
-        first = first or frame
-        end_ns, count = frame.time_ns, count + 1
-    if first is None:
-        raise RecordingError(f"{path} holds no readable frame")
-    topics = tuple(
-        TopicSummary(topic, schema, "protobuf", count)
-        for topic, schema in zip(
-            fmt.REQUIRED_TOPICS,
-            ("foxglove.RawImage", "foxglove.RawImage", "foxglove.CameraCalibration"),
-            strict=True,
+            counts = summary.statistics.channel_message_counts if summary.statistics else {}
+            schemas = {sid: schema.name for sid, schema in summary.schemas.items()}
+            topics = tuple(
+                TopicSummary(
+                    ch.topic, schemas.get(ch.schema_id, ""), ch.message_encoding,
+                    counts.get(cid, 0),
+                )
+                for cid, ch in sorted(summary.channels.items())
+            )
+        else:
+            topics = tuple(
+                TopicSummary(topic, schema, "protobuf", count)
+                for topic, schema in zip(
+                    fmt.REQUIRED_TOPICS,
+                    ("foxglove.RawImage", "foxglove.RawImage", "foxglove.CameraCalibration"),
+                    strict=True,
+                )
+            )
+        return _make_summary(
+            path, first, end_ns, count, topics, metadata, indexed=summary is not None
         )
-    )
-    return _make_summary(path, first, end_ns, count, topics, metadata, indexed=False)
-
-
-def _first_frame(path: Path, messages: Iterator[tuple[str, int, bytes]]) -> RgbdFrame:
-    frames = frames_from_messages(path, messages)
-    try:
-        return next(frames)
-    except StopIteration:
-        raise RecordingError(f"{path} holds no frame") from None
-    finally:
-        frames.close()
 
 
 def _make_summary(
@@ -392,3 +417,15 @@ def _make_summary(
         marker_ids=markers.ids if markers else None,
         **flags,
     )
+
+
+def indexed_frame_count(path: Path) -> int | None:
+    """The number of colour images the recording's index lists, without reading a frame (for
+    progress bars); None when the file has no trusted index. May exceed the readable frames."""
+    with open_recording(path) as recording:
+        summary = recording.summary
+        if summary is None or summary.statistics is None:
+            return None
+        counts = summary.statistics.channel_message_counts
+        return next((counts.get(cid, 0) for cid, channel in summary.channels.items()
+                     if channel.topic == fmt.COLOR_TOPIC), None)

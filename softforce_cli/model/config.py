@@ -18,7 +18,7 @@ from softforce_cli.fem.materials import LAWS
 
 _KEYS = {
     "top": {"name", "mesh", "material", "fixed", "cable", "features", "marker"},
-    "mesh": {"path", "scale", "rotation_deg", "translation_mm", "element"},
+    "mesh": {"path", "scale", "rotation_deg", "translation_mm", "element", "reduced"},
     "material": {"law", "young_modulus_mpa", "poisson_ratio", "total_mass_kg", "density_kg_m3",
                  "gravity_mm_s2"},
     "fixed": {"box_mm"},
@@ -35,6 +35,8 @@ class MeshSpec:
     rotation_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     translation_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     element: str = "p1"
+    # a reduced-order model (.rom.npz from `softforce model reduce`), resolved like `path`
+    reduced: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -85,9 +87,14 @@ def load_config(path: Path) -> RobotConfig:
         raise ModelError(f"robot file {path} not found; create one with `softforce model init`")
     try:
         data = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, OSError) as error:
         raise ModelError(f"{path}: not valid TOML ({error})") from error
-    return parse_config(data, path)
+    try:
+        return parse_config(data, path)
+    except (TypeError, ValueError, AttributeError, KeyError, IndexError) as error:
+        # a shape parse_config has no specific check for; still one line naming the file
+        raise ModelError(f"{path}: malformed robot file ({type(error).__name__}: {error}); "
+                         "see docs/robot_model.md") from error
 
 
 def parse_config(data: dict[str, Any], source: Path) -> RobotConfig:
@@ -98,8 +105,8 @@ def parse_config(data: dict[str, Any], source: Path) -> RobotConfig:
             raise ModelError(f"{source}: missing [{section}] section (see DESIGN.md section 4)")
     mesh = data["mesh"]
     where.keys(mesh, "mesh", "mesh")
-    if "path" not in mesh:
-        raise ModelError(f"{source}: [mesh] needs `path`, the tetrahedral mesh file")
+    if not isinstance(mesh.get("path"), str) or not mesh["path"].strip():
+        raise ModelError(f"{source}: [mesh] needs `path`, the tetrahedral mesh file name")
     element = mesh.get("element", "p1")
     if not isinstance(element, str) or element not in ELEMENTS:
         raise ModelError(f"{source}: mesh.element {element!r} unknown; use "
@@ -111,8 +118,9 @@ def parse_config(data: dict[str, Any], source: Path) -> RobotConfig:
         translation_mm=where.vector(mesh.get("translation_mm", [0, 0, 0]),
                                     "mesh.translation_mm"),
         element=element,
+        reduced=_reduced_path(mesh.get("reduced"), source),
     )
-    fixed = data.get("fixed", [])
+    fixed = where.tables(data.get("fixed", []), "fixed")
     boxes = []
     for i, box in enumerate(fixed):
         where.keys(box, "fixed", f"fixed[{i}]")
@@ -137,12 +145,22 @@ def parse_config(data: dict[str, Any], source: Path) -> RobotConfig:
         mesh=mesh_spec,
         material=_material(data["material"], where),
         fixed_boxes_mm=tuple(boxes),
-        cables=_cables(data.get("cable", []), where),
+        cables=_cables(where.tables(data.get("cable", []), "cable"), where),
         feature_count=count,
         feature_points_mm=None if points is None else tuple(
             where.vector(p, f"features.points_mm[{i}]") for i, p in enumerate(points)),
-        markers=_markers(data.get("marker", []), where),
+        markers=_markers(where.tables(data.get("marker", []), "marker"), where),
     )
+
+
+def _reduced_path(value: Any, source: Path) -> Path | None:
+    """mesh.reduced: a .rom.npz path relative to the robot file, or None."""
+    if value is None:
+        return None
+    if not isinstance(value, str) or not value.strip():
+        raise ModelError(f"{source}: mesh.reduced must be a file name (a .rom.npz from "
+                         f"`softforce model reduce`), got {value!r}")
+    return (source.parent / value).resolve()
 
 
 def _material(material: dict[str, Any], where: _Where) -> MaterialSpec:
@@ -221,6 +239,11 @@ def _unique(names: list[str], what: str, source: Path) -> None:
         seen.add(name)
 
 
+# Points farther than this from the origin are a unit mistake (m taken for mm, or worse), and
+# would overflow the nearest-element search.
+MAX_COORDINATE_MM = 1e6
+
+
 @dataclass(frozen=True)
 class _Where:
     """Validators that name the file and key in their error."""
@@ -255,4 +278,14 @@ class _Where:
         return tuple(self.number(v, key) for v in value)
 
     def vector(self, value: Any, key: str) -> tuple[float, float, float]:
-        return self.numbers(value, 3, key)  # type: ignore[return-value]
+        vector = self.numbers(value, 3, key)
+        if max(abs(v) for v in vector) > MAX_COORDINATE_MM:
+            raise ModelError(f"{self.source}: {key} = {list(vector)} is over 1 km from the "
+                             "origin; coordinates are in mm")
+        return vector  # type: ignore[return-value]
+
+    def tables(self, value: Any, key: str) -> list:
+        if not isinstance(value, list):
+            raise ModelError(f"{self.source}: {key} must be an array of tables ([[{key}]]), "
+                             f"got {value!r}")
+        return value

@@ -18,6 +18,11 @@ from softforce_cli.errors import ScenarioError
 from softforce_cli.fem.materials import LAWS
 
 LOAD_KINDS = ("weight", "probe")
+# Bounds that keep a typo from asking for hours of work: a 4096-pixel image side (the D415
+# gives at most 1920) and a million repeats of one frame (a week at 0.5 s a frame).
+MAX_IMAGE_SIDE = 4096
+MAX_REPEAT = 1_000_000
+
 _KEYS = {
     "top": {
         "name",
@@ -122,16 +127,27 @@ def load_scenario(path: Path) -> Scenario:
         raise ScenarioError(f"scenario file {path} not found")
     try:
         data = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, OSError) as error:
         raise ScenarioError(f"{path}: not valid TOML ({error})") from error
+    try:
+        return _scenario(data, path)
+    except (TypeError, ValueError, AttributeError, KeyError, IndexError, OverflowError) as error:
+        # a shape _scenario has no specific check for; still one line naming the file
+        raise ScenarioError(f"{path}: malformed scenario ({type(error).__name__}: {error}); "
+                            "see docs/scenarios.md") from error
+
+
+def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     check = _Checker(path)
     check.keys(data, "top", "top level")
-    if "robot" not in data:
-        raise ScenarioError(f"{path}: needs `robot`, the ground-truth robot file")
+    if not isinstance(data.get("robot"), str) or not data["robot"].strip():
+        raise ScenarioError(f"{path}: needs `robot`, the ground-truth robot file name")
     law = data.get("law")
     if law is not None and law not in LAWS:
         raise ScenarioError(f"{path}: law {law!r} unknown; use one of {', '.join(LAWS)}")
     frames = data.get("frame", [])
+    if not isinstance(frames, list):
+        raise ScenarioError(f"{path}: frame must be an array of tables ([[frame]])")
     if not frames:
         raise ScenarioError(f"{path}: no [[frame]]; a scenario needs at least one")
     camera = data.get("camera", {})
@@ -145,11 +161,11 @@ def load_scenario(path: Path) -> Scenario:
         name=str(data.get("name", path.stem)),
         robot=(path.parent / data["robot"]).resolve(),
         law=law,
-        seed=int(data.get("seed", 0)),
+        seed=check.integer(data.get("seed", 0), "seed", 0, 2**63 - 1),
         frame_interval_s=check.positive(data.get("frame_interval_s", 0.5), "frame_interval_s"),
         camera=CameraSpec(
-            width=int(camera.get("width", 640)),
-            height=int(camera.get("height", 480)),
+            width=check.integer(camera.get("width", 640), "camera.width", 1, MAX_IMAGE_SIDE),
+            height=check.integer(camera.get("height", 480), "camera.height", 1, MAX_IMAGE_SIDE),
             # the D415's colour camera: 69 x 42 degrees
             horizontal_fov_deg=check.positive(
                 camera.get("horizontal_fov_deg", 69.0), "camera.horizontal_fov_deg"
@@ -179,9 +195,11 @@ def _frame(frame: dict[str, Any], index: int, check: _Checker) -> FrameSpec:
     if not isinstance(actuation, list):
         raise ScenarioError(f"{check.source}: {label}.actuation must be a list of numbers")
     repeat = frame.get("repeat", 1)
-    if not isinstance(repeat, int) or repeat < 1:
-        raise ScenarioError(f"{check.source}: {label}.repeat must be a positive integer")
+    if isinstance(repeat, bool) or not isinstance(repeat, int) or not 1 <= repeat <= MAX_REPEAT:
+        raise ScenarioError(f"{check.source}: {label}.repeat must be an integer in 1..{MAX_REPEAT}")
     loads = []
+    if not isinstance(frame.get("load", []), list):
+        raise ScenarioError(f"{check.source}: {label}.load must be a list of loads")
     for j, load in enumerate(frame.get("load", [])):
         where = f"{label}.load[{j}]"
         check.keys(load, "load", where)
@@ -226,6 +244,12 @@ class _Checker:
                 f"{self.source}: unknown key {unknown[0]!r} in {label}; "
                 f"expected one of {', '.join(sorted(_KEYS[kind]))}"
             )
+
+    def integer(self, value: Any, key: str, low: int, high: int) -> int:
+        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+            raise ScenarioError(f"{self.source}: {key} must be an integer in {low}..{high}, "
+                                f"got {value!r}")
+        return value
 
     def number(self, value: Any, key: str) -> float:
         if (
