@@ -21,7 +21,7 @@ demo: setup
 	bash scripts/demo.sh $(OUT)/demo
 
 test: setup
-	$(BIN)/pytest -q
+	OPENBLAS_NUM_THREADS=1 $(BIN)/pytest -q
 
 lint: setup
 	$(BIN)/ruff check softforce_cli tests scripts benchmarks

@@ -16,7 +16,8 @@ from benchmarks.timing import BenchRow
 from softforce_cli.fem.allocator import keep_freed_memory
 
 # Each module exposes run() -> list[BenchRow].
-MODULES = ["benchmarks.bench_fem", "benchmarks.bench_calibration", "benchmarks.bench_recording"]
+MODULES = ["benchmarks.bench_fem", "benchmarks.bench_calibration", "benchmarks.bench_recording",
+           "benchmarks.bench_memory", "benchmarks.bench_reduced", "benchmarks.bench_sense"]
 
 
 def machine() -> str:

@@ -20,22 +20,47 @@ SCENARIOS = ROOT / "sample_data" / "scenarios"
 RECORDINGS = ROOT / "sample_data" / "recordings"
 
 
+# States of each sample scenario that the tests solve again: the truth (P2 on 8.7k tets)
+# costs 12 s to minutes of CPU per state, so the first two (an actuation, then a load or
+# another actuation) stand for the rest, which use the same code. About 3 minutes of CPU
+# for this file in all.
+STATES = 2
+
+
+def scenario_prefix(name: str, states: int, folder: Path, noise: bool = True) -> Path:
+    """A copy of sample scenario `name` with its first `states` [[frame]] blocks only."""
+    text = (SCENARIOS / f"{name}.toml").read_text()
+    head, *frames = text.split("\n[[frame]]")
+    text = "\n[[frame]]".join([head, *frames[:states]]) + "\n"
+    text = text.replace('robot = "../', f'robot = "{SCENARIOS.parent}/')
+    if not noise:
+        text = text.replace("[camera]", "[camera]\nnoise = false")
+    path = folder / f"{name}.toml"
+    path.write_text(text)
+    return path
+
+
 @pytest.mark.parametrize("name", ["markers", "weights", "probes"])
 def test_sample_recordings_are_reproduced_by_their_scenarios(name, tmp_path):
-    """The committed sample data cannot drift from the code that makes it."""
-    result = simulate(SCENARIOS / f"{name}.toml", tmp_path / f"{name}.mcap")
+    """The committed sample data cannot drift from the code that makes it (its first frames:
+    the noise is drawn frame by frame, so a prefix of the scenario gives a prefix of it)."""
+    result = simulate(scenario_prefix(name, STATES, tmp_path), tmp_path / f"{name}.mcap")
     committed = json.loads((RECORDINGS / f"{name}.truth.json").read_text())
     fresh = json.loads(result.truth.read_text())
-    assert len(fresh["frames"]) == len(committed["frames"]) == result.frames
-    for old, new in zip(committed["frames"], fresh["frames"], strict=True):
+    assert fresh["truth_model"] == committed["truth_model"]
+    # weights: still the P1 fine truth (docs/scenarios.md: the P2 truth does not converge
+    # under its 1.06 N point load)
+    assert fresh["truth_model"]["element"] == ("p1" if name == "weights" else "p2")
+    assert len(fresh["frames"]) == result.frames < len(committed["frames"])
+    for old, new in zip(committed["frames"], fresh["frames"], strict=False):  # a prefix
         assert new["actuation"] == old["actuation"]
         np.testing.assert_allclose(new["cable_tensions_n"], old["cable_tensions_n"], atol=1e-5)
         for c_old, c_new in zip(old["contacts"], new["contacts"], strict=True):
             np.testing.assert_allclose(c_new["point_mm"], c_old["point_mm"], atol=1e-3)
             np.testing.assert_allclose(c_new["force_n"], c_old["force_n"], atol=1e-6)
-    for old, new in zip(
-        iter_frames(RECORDINGS / f"{name}.mcap"), iter_frames(result.recording), strict=True
-    ):
+    recorded = zip(iter_frames(RECORDINGS / f"{name}.mcap"), iter_frames(result.recording),
+                   strict=False)
+    for old, new in recorded:
         assert new.time_ns == old.time_ns
         # rounding of the depth may flip where the geometry differs in the last bits
         changed = np.abs(new.depth_mm.astype(int) - old.depth_mm.astype(int))
@@ -45,11 +70,7 @@ def test_sample_recordings_are_reproduced_by_their_scenarios(name, tmp_path):
 
 def test_noise_free_depth_agrees_with_the_truth_geometry(tmp_path):
     """Project the apex marker (on the top surface) into the image: the depth there is its z."""
-    scenario = SCENARIOS / "markers.toml"
-    text = scenario.read_text().replace("[camera]", "[camera]\nnoise = false")
-    text = text.replace('robot = "../', f'robot = "{SCENARIOS.parent}/')
-    quiet = tmp_path / "quiet.toml"
-    quiet.write_text(text)
+    quiet = scenario_prefix("markers", STATES, tmp_path, noise=False)
     result = simulate(quiet, tmp_path / "quiet.mcap")
     truth = json.loads(result.truth.read_text())
     for frame, recorded in zip(truth["frames"], iter_frames(result.recording), strict=True):
@@ -99,7 +120,7 @@ def test_weights_make_the_apex_sink_monotonically():
     [
         ('law = "neo-hookean"', 'law = "rubber"', "law 'rubber' unknown"),
         ("[camera]", "[camera]\nzoom = 2", "unknown key 'zoom' in [camera]"),
-        ('robot = "../diamond_fine/diamond.toml"', 'robot = "../nothere.toml"', "not found"),
+        ('robot = "../diamond_truth/diamond.toml"', 'robot = "../nothere.toml"', "not found"),
         ("actuation = [0.0, 0.0, 0.0, 0.0]", "actuation = [0.0, 0.0]", "2 actuation values"),
     ],
 )

@@ -142,7 +142,7 @@ def fit_young_modulus(
             / np.sqrt(len(estimates)) / np.mean(estimates)
         ci = (modulus / (1 + spread), modulus / max(1 - spread, 1e-9))
     return MaterialFit(modulus, ci, magnitude, tuple(estimates), nominal, history[0], rms,
-                       passes, robot.config.mesh.element, robot.material.law, bool(reference))
+                       passes, robot.element_name, robot.material.law, bool(reference))
 
 
 def _sensed(robot: Robot, robot_from_camera: RigidTransform, loaded: list[RgbdFrame],

@@ -125,3 +125,73 @@ def solve(
     table.add_row("Newton iterations", str(summary["newton_iterations"]))
     table.add_row("written", str(output))
     stdout.print(table)
+
+
+@app.command("reduce")
+def reduce(
+    robot_file: RobotArgument,
+    output: Annotated[Path, typer.Option("-o", "--output",
+                                         help="Reduced model to write (.rom.npz).")],
+    element: Annotated[str, typer.Option(help="Element trained on: p2 or p2-p0 (accurate, "
+                                              "locking-free), or p1.")] = "p2",
+    max_force: Annotated[float, typer.Option(help="Largest contact force trained (N).")] = 1.0,
+    max_modes: Annotated[int, typer.Option(help="Cap on the basis size.")] = 120,
+    box_fraction: Annotated[float, typer.Option(
+        help="Train over this fraction of each cable's [min, max] from the robot file.")
+    ] = 1.0,
+    keep_snapshots: Annotated[bool, typer.Option(
+        help="Keep the training snapshots (OUTPUT.snapshots.npz, ~100 MB) to retrain fast.")
+    ] = False,
+    json_output: JsonOption = False,
+    force: ForceOption = False,
+) -> None:
+    """Train a reduced-order model (POD + ECSW) of the robot; use it with [mesh] reduced.
+
+    The snapshots are saved beside OUTPUT while training, so a run stopped after them resumes
+    there; they are deleted at the end unless --keep-snapshots.
+    """
+    from rich.markup import escape
+
+    from softforce_cli.cli.common import progress_bar
+    from softforce_cli.fem.element import ELEMENTS
+    from softforce_cli.fem.reduction.rom_file import save_reduction
+    from softforce_cli.fem.reduction.train import TrainingSettings, train_robot
+    from softforce_cli.io.atomic import check_writable
+    from softforce_cli.model.robot import load_robot, with_element
+
+    if element not in ELEMENTS:
+        raise ModelError(f"--element {element!r} unknown; use {' or '.join(ELEMENTS)}")
+    check_writable(output, force)
+    robot = with_element(load_robot(robot_file), element)
+    if not 0.0 < box_fraction <= 1.0:
+        raise ModelError(f"--box-fraction {box_fraction:g} must be in (0, 1]")
+    settings = TrainingSettings(max_force_n=max_force, max_modes=max_modes,
+                                box_fraction=box_fraction)
+    # the snapshots are kept beside the output: a stopped training resumes after them
+    cache = output.with_name(output.name + ".snapshots.npz")
+    with progress_bar(f"training {element} reduced model") as advance:
+        reduction = train_robot(robot, settings, advance, cache)
+    save_reduction(output, reduction, force=force)
+    if not keep_snapshots:
+        cache.unlink(missing_ok=True)
+    info = reduction.info
+    summary = {"output": str(output), "element": element, "modes": info["modes"],
+               "sampled_elements": info["sampled_elements"], "elements": info["elements"],
+               "validation_rms_mm": reduction.box.rms_error_mm,
+               "training_s": round(info["total_s"], 1),
+               "robot_key": f'[mesh] reduced = "{output.name}"'}
+    if json_output:
+        print_json(summary)
+        return
+    table = Table(title=f"reduced model of {robot.name}", show_header=False)
+    table.add_row("basis", f"{info['modes']} modes (POD energy tolerance "
+                           f"{info['energy_tolerance']:g})")
+    table.add_row("sampled elements", f"{info['sampled_elements']} of {info['elements']} "
+                                      f"(ECSW residual {info['ecsw_residual']:.2g})")
+    table.add_row("validation", f"{reduction.box.rms_error_mm:.3f} mm RMS surface error at "
+                                "untrained actuations")
+    table.add_row("training", f"{info['total_s']:.0f} s")
+    table.add_row("written", str(output))
+    table.add_row("use it", escape(f'add reduced = "{output.name}" under [mesh] of '
+                                   f"{robot_file.name}"))
+    stdout.print(table)

@@ -111,6 +111,7 @@ class ForceSensor:
         self._tare_count = np.zeros(len(robot.feature_nodes))
         clamped = robot.mesh.nodes_mm[robot.fixed_nodes]
         self.clamped_box = np.r_[clamped.min(axis=0), clamped.max(axis=0)]
+        self.table_plane: tuple[np.ndarray, float] | None = None
         if known_contact is not None:
             point = np.asarray(known_contact.rest_point_mm, dtype=float)[None]
             self.known_points = robot.attach(point)
@@ -184,9 +185,13 @@ class ForceSensor:
                                                   self.robot.mesh.surface_nodes,
                                                   self.settings.vision)
         positions, normals = self.feature_geometry()
-        return process_frame(frame.depth_mm, frame.color, frame.intrinsics, self.transform,
-                             bounds, positions, normals, self.robot_rgb, self.settings.vision,
-                             self.clamped_box)
+        # the camera is fixed to the table (its pose is calibrated): the table found on one
+        # frame is the table of the next
+        result = process_frame(frame.depth_mm, frame.color, frame.intrinsics, self.transform,
+                               bounds, positions, normals, self.robot_rgb, self.settings.vision,
+                               self.clamped_box, self.table_plane)
+        self.table_plane = result.table_plane
+        return result
 
     def _match(self, robot_points_mm: np.ndarray) -> FeatureMatches:
         positions, normals = self.feature_geometry()

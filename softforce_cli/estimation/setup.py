@@ -110,7 +110,7 @@ def prepare_sensing(inputs: SenseInputs, live: bool = False) -> PreparedSensing:
         "softforce_version": __version__,
         "recording": source,
         "robot": {"name": robot.name, "file": str(inputs.robot),
-                  "element": robot.config.mesh.element,
+                  "element": robot.element_name,
                   "young_modulus_mpa": robot.material.young_modulus_mpa},
         "calibration": {"file": str(inputs.calibration),
                         "residual_rms_mm": None if np.isnan(calibration.residual_rms_mm)

@@ -12,14 +12,15 @@ an actuator or force index on its right.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.sparse as sp
 
 from softforce_cli.fem.attachment import Attachment
-from softforce_cli.fem.linear_solver import Factorization
+from softforce_cli.fem.coordinates import Factor
 from softforce_cli.fem.model import FEModel
-from softforce_cli.fem.statics import PointLoads, external_forces
+from softforce_cli.fem.statics import PointLoads
 
 
 @dataclass(frozen=True)
@@ -28,24 +29,34 @@ class Linearization:
 
     positions_mm     : (n, 3) the configuration.
     cable_tensions_n : (a,) cable forces whose geometric stiffness is in K.
-    free_motion_mm   : (n, 3) K^-1 (f_ext - g(x)): where the nodes go, to first order, if
-                       every constraint force (cables, external forces) is removed.
-    factorization    : of K(x) over the free dofs.
+    free_motion      : (c,) K^-1 (f_ext - g(x)) in the model's coordinates (fem.coordinates);
+                       free_motion_mm is it as node motions (n, 3): where the nodes go, to
+                       first order, if every constraint force (cables, forces) is removed.
+    factorization    : of K(x) in the model's coordinates (fem.coordinates: the free dofs,
+                       or a reduced basis).
     """
 
     model: FEModel
     positions_mm: np.ndarray
     cable_tensions_n: np.ndarray
-    free_motion_mm: np.ndarray
-    factorization: Factorization
+    free_motion: np.ndarray
+    factorization: Factor
+
+    @cached_property
+    def free_motion_mm(self) -> np.ndarray:
+        """(n, 3) mm: the free motion at the nodes."""
+        return self.model.coordinates.lift(self.free_motion).reshape(-1, 3)
+
+    def solve_rows(self, rows) -> np.ndarray:
+        """(K^-1 in coordinates) (H T)^T for rows H (k, 3n) -> (c, k)."""
+        projected = self.model.coordinates.project_rows(rows)
+        projected = projected.toarray() if sp.issparse(projected) else projected
+        return self.factorization.solve(projected.T)
 
     def responses(self, rows: np.ndarray) -> np.ndarray:
-        """K^-1 H^T for dense rows H (k, 3n) -> (3n, k) mm per unit force; clamped dofs 0."""
-        free = self.model.free_dofs
-        solved = self.factorization.solve(rows[:, free].T)
-        out = np.zeros((3 * self.model.node_count, rows.shape[0]))
-        out[free] = solved
-        return out
+        """K^-1 H^T for rows H (k, 3n) (dense or sparse) -> (3n, k) mm per unit force; clamped
+        dofs 0. In a model's coordinates x = x_0 + T q this is T (T^T K T)^-1 (H T)^T."""
+        return self.model.coordinates.lift(self.solve_rows(rows))
 
 
 def linearize(
@@ -53,22 +64,18 @@ def linearize(
     positions_mm: np.ndarray,
     cable_tensions_n: np.ndarray | None = None,
     loads: PointLoads | None = None,
-    factorization: Factorization | None = None,
+    factorization: Factor | None = None,
 ) -> Linearization:
     """Assemble and factorise K(x) (elastic + cable geometric stiffness) and the free motion.
 
     Pass the previous Linearization's factorization to reuse its symbolic analysis.
     """
     tensions = np.zeros(len(model.cables)) if cable_tensions_n is None else cable_tensions_n
-    internal, stiffness = model.internal_forces_and_stiffness(positions_mm)
-    tangent = stiffness + model.cable_stiffness(positions_mm, tensions)
-    factor = (
-        Factorization(tangent) if factorization is None else factorization.refactor(tangent)
-    )
-    free = model.free_dofs
-    motion = np.zeros(3 * model.node_count)
-    motion[free] = factor.solve((external_forces(model, loads) - internal).ravel()[free])
-    return Linearization(model, positions_mm, tensions, motion.reshape(-1, 3), factor)
+    space = model.coordinates
+    internal, tangent = space.forces_and_tangent(positions_mm, tensions)
+    factor = space.factorize(tangent, factorization)
+    motion = factor.solve(space.project_loads(loads) - internal)
+    return Linearization(model, positions_mm, tensions, motion, factor)
 
 
 @dataclass(frozen=True)
@@ -105,19 +112,26 @@ def force_rows(points: Attachment, directions: np.ndarray, node_count: int) -> s
 def compliance(
     linearization: Linearization, effectors: sp.spmatrix, forces: sp.spmatrix
 ) -> Compliance:
-    """W matrices and free displacements for effector rows H_e and force rows H_f."""
+    """W matrices and free displacements for effector rows H_e and force rows H_f.
+
+    Worked in the model's coordinates (W_ij = (H_i T) K^-1 (H_j T)^T), so a reduced model
+    never lifts its solutions to the nodes.
+    """
     model = linearization.model
+    space = model.coordinates
     positions = linearization.positions_mm.ravel()
     actuators = model.cable_jacobian(linearization.positions_mm)
-    response = linearization.responses(np.vstack([actuators, forces.toarray()]))
     a = actuators.shape[0]
-    free_motion = linearization.free_motion_mm.ravel()
+    solved = linearization.solve_rows(sp.vstack([sp.csr_matrix(actuators), forces]).tocsr())
+    projected_e = space.project_rows(effectors)
+    projected_a = space.project_rows(actuators)
+    free_motion = linearization.free_motion
     return Compliance(
-        W_ea=effectors @ response[:, :a],
-        W_ef=effectors @ response[:, a:],
-        W_aa=actuators @ response[:, :a],
-        W_af=actuators @ response[:, a:],
-        delta_e_free=effectors @ (positions + free_motion),
+        W_ea=np.asarray(projected_e @ solved[:, :a]),
+        W_ef=np.asarray(projected_e @ solved[:, a:]),
+        W_aa=projected_a @ solved[:, :a],
+        W_af=projected_a @ solved[:, a:],
+        delta_e_free=np.asarray(effectors @ positions + projected_e @ free_motion),
         delta_a_free=model.cable_shortenings(linearization.positions_mm)
-        + actuators @ free_motion,
+        + projected_a @ free_motion,
     )

@@ -148,11 +148,11 @@ def element_stiffness(
     m, q, k, _ = gradients.shape
     # C[m, q, (i, j, k), b] = A_ijkl dN_b/dX_l
     inner = tangent.reshape(m, q, 27, 3) @ gradients.transpose(0, 1, 3, 2)
-    # rows (q, j), columns (i, k, b)
-    inner = inner.reshape(m, q, 3, 3, 3, k).transpose(0, 1, 3, 2, 4, 5).reshape(m, 3 * q, 9 * k)
+    # rows (q, j), columns (i, b, k): the one copy, ordered so that the second product comes
+    # out node-major, [a, i, b, k], with no transpose of the (larger) result
+    inner = inner.reshape(m, q, 3, 3, 3, k).transpose(0, 1, 3, 2, 5, 4).reshape(m, 3 * q, 9 * k)
     left = (weights[:, :, None, None] * gradients).transpose(0, 2, 1, 3).reshape(m, k, 3 * q)
-    stiffness = (left @ inner).reshape(m, k, 3, 3, k)  # [a, i, k, b]
-    return stiffness.transpose(0, 1, 2, 4, 3).reshape(m, 3 * k, 3 * k)
+    return (left @ inner).reshape(m, 3 * k, 3 * k)
 
 
 @dataclass(frozen=True)

@@ -125,8 +125,10 @@ def polar_decomposition(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     through the SVD with the smallest singular value negated, so R stays a rotation and the
     element is pushed back rather than reflected.
     """
-    upright = np.linalg.det(F) > 0
-    X = np.ascontiguousarray(F[upright].reshape(-1, 9).T)
+    X = np.ascontiguousarray(F.reshape(-1, 9).T)
+    upright = _cofactors(X)[1] > 0  # det F by cofactors: LAPACK's det per 3 x 3 is slower
+    if not upright.all():
+        X = np.ascontiguousarray(X[:, upright])
     for _ in range(POLAR_ITERATIONS):
         cofactors, det = _cofactors(X)
         scale = np.abs(det) ** (-1.0 / 3.0)

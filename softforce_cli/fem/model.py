@@ -10,6 +10,7 @@ import scipy.sparse as sp
 
 from softforce_cli.fem.assembly import ReducedPattern, assemble_vector, element_dofs
 from softforce_cli.fem.cables import Cable
+from softforce_cli.fem.coordinates import FreeDofs
 from softforce_cli.fem.element import (
     TetElement,
     deformation_gradients,
@@ -167,6 +168,28 @@ class FEModel:
         forces = element_forces(stress, self.shape_gradients, weights)
         stiffness = element_stiffness(tangent, self.shape_gradients, weights)
         return self._nodal(forces), self.pattern.assemble(stiffness)
+
+    def element_terms(
+        self, positions_mm: np.ndarray, which: np.ndarray, with_tangent: bool
+    ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray | None]:
+        """Per-element terms of elements `which` (s,) at positions (n, 3): energies (s,) mJ
+        (None with_tangent), internal forces (s, 3k) N in element_dofs order and, with_tangent,
+        stiffness (s, 3k, 3k) N/mm (else None). Used by hyper-reduction (few elements)."""
+        gradients = self.shape_gradients[which]
+        weights = self.quadrature_weights_mm3[which]
+        F = deformation_gradients(positions_mm, self.tets[which], gradients)
+        if not with_tangent:
+            density, stress = self._constitutive(F, with_tangent=False)
+            return ((density * weights).sum(axis=1),
+                    element_forces(stress, gradients, weights), None)
+        stress, tangent = self._constitutive(F, with_tangent=True)
+        return (None, element_forces(stress, gradients, weights),
+                element_stiffness(tangent, gradients, weights))
+
+    @cached_property
+    def coordinates(self) -> FreeDofs:
+        """The coordinates static solves work in: the free dofs (fem.coordinates)."""
+        return FreeDofs(self)
 
     def cable_shortenings(self, positions_mm: np.ndarray) -> np.ndarray:
         """(a,) mm: delta = L0 - L(x) of each cable."""

@@ -14,7 +14,6 @@ import numpy as np
 from softforce_cli.errors import SolverError
 from softforce_cli.fem.attachment import Attachment
 from softforce_cli.fem.cables import CableInputs
-from softforce_cli.fem.linear_solver import Factorization
 from softforce_cli.fem.model import FEModel
 
 
@@ -87,25 +86,28 @@ def solve_equilibrium(
         raise SolverError(
             f"{len(inputs.values)} actuation values given for {len(model.cables)} cables"
         )
-    positions = model.rest_nodes_mm.copy() if start_mm is None else np.array(start_mm, float)
-    free = model.free_dofs
-    applied = external_forces(model, loads).ravel()
+    space = model.coordinates
+    start = model.rest_nodes_mm if start_mm is None else np.asarray(start_mm, dtype=float)
+    positions = space.admissible(start)
+    external = external_forces(model, loads)
+    applied = space.project_loads(loads)
     controlled = inputs.displacement_controlled
     tensions = np.where(controlled, 0.0, inputs.values)
+    space.check_load(inputs, external)  # a reduced model warns outside its training box
+
     def residual_at(x: np.ndarray, lam: np.ndarray) -> np.ndarray:
-        internal_x = model.internal_forces(x).ravel()
-        return (applied - internal_x)[free] + model.cable_jacobian(x)[:, free].T @ lam
+        _, internal_x = space.energy_and_forces(x)
+        return applied - internal_x + space.project_rows(model.cable_jacobian(x)).T @ lam
 
     stiffness_scale = None
     factor = None
     history: list[float] = []
     for _ in range(settings.max_iterations):
-        internal, stiffness = model.internal_forces_and_stiffness(positions)
-        jacobian = model.cable_jacobian(positions)[:, free]
-        tangent = stiffness + model.cable_stiffness(positions, tensions)
+        internal, tangent = space.forces_and_tangent(positions, tensions)
+        jacobian = space.project_rows(model.cable_jacobian(positions))
         if stiffness_scale is None:
             stiffness_scale = float(np.mean(tangent.diagonal()))
-        residual = (applied - internal.ravel())[free] + jacobian.T @ tensions
+        residual = applied - internal + jacobian.T @ tensions
         violation = (inputs.values - model.cable_shortenings(positions))[controlled]
         history.append(float(np.abs(residual).max(initial=0.0)))
         # a slack cable (no tension) may be shorter than asked, never longer
@@ -113,8 +115,8 @@ def solve_equilibrium(
         gap = np.where(slack, violation, np.abs(violation))
         if history[-1] <= settings.force_tolerance_n and np.all(gap < 1e-9):
             break
-        factor = Factorization(tangent) if factor is None else factor.refactor(tangent)
-        base = (applied - internal.ravel())[free] + jacobian[~controlled].T @ tensions[~controlled]
+        factor = space.factorize(tangent, factor)
+        base = applied - internal + jacobian[~controlled].T @ tensions[~controlled]
         step = factor.solve(base)
         if controlled.any():
             tensions, step = _cable_tensions(
@@ -131,15 +133,12 @@ def solve_equilibrium(
             f"static solve did not converge in {settings.max_iterations} Newton iterations "
             f"(force residual {history[-1]:.3g} N); reduce the load or refine the mesh"
         )
-    internal = model.internal_forces(positions)
-    total = applied.reshape(-1, 3) - internal + (
-        model.cable_jacobian(positions).T @ tensions
-    ).reshape(-1, 3)
+    cable_forces = (model.cable_jacobian(positions).T @ tensions).reshape(-1, 3)
     return Equilibrium(
         positions_mm=positions,
         cable_tensions_n=tensions,
         cable_shortenings_mm=model.cable_shortenings(positions),
-        reaction_forces_n=-total[model.fixed_nodes],
+        reaction_forces_n=space.reactions(positions, external + cable_forces),
         iterations=len(history),
         residual_history_n=tuple(history),
     )
@@ -180,26 +179,27 @@ def _line_search(model, positions, step, residual, tensions, applied, inputs, co
     residual; the residual test takes over near convergence, where energy changes drown in
     round-off. Returns the new positions and whether the full step was taken.
     """
-    free = model.free_dofs
+    space = model.coordinates
+    lifted = space.lift(step).reshape(-1, 3)
+    load_slope = float(applied @ step)  # the dead loads' work per unit alpha: f^T T step
 
-    def evaluate(trial: np.ndarray) -> tuple[float, float]:
-        energy, internal = model.energy_and_forces(trial)
-        r = (applied - internal.ravel())[free] + model.cable_jacobian(trial)[:, free].T @ tensions
+    def evaluate(trial: np.ndarray, alpha: float) -> tuple[float, float]:
+        energy, internal = space.energy_and_forces(trial)
+        r = applied - internal + space.project_rows(model.cable_jacobian(trial)).T @ tensions
         shortenings = model.cable_shortenings(trial)
         c = (inputs.values - shortenings)[controlled]
         c = np.where(tensions[controlled] > 0.0, c, np.maximum(c, 0.0))  # slack: one-sided
-        potential = energy - applied @ trial.ravel() - tensions @ shortenings
+        potential = energy - alpha * load_slope - tensions @ shortenings
         merit = float(r @ r + scale**2 * c @ c)
         return (potential if np.isfinite(potential) else np.inf,
                 merit if np.isfinite(merit) else np.inf)
 
-    potential0, merit0 = evaluate(positions)
+    potential0, merit0 = evaluate(positions, 0.0)
     slope = -float(residual @ step)  # d(potential)/d(alpha) at alpha = 0
     alpha = 1.0
     for _ in range(settings.max_backtracks):
-        trial = positions.copy()
-        trial.reshape(-1)[free] += alpha * step
-        potential, merit = evaluate(trial)
+        trial = positions + alpha * lifted
+        potential, merit = evaluate(trial, alpha)
         energy_ok = slope < 0 and potential <= potential0 + 1e-4 * alpha * slope
         if energy_ok or merit <= (1.0 - 1e-4 * alpha) * merit0 or merit0 == 0.0:
             return trial, alpha == 1.0

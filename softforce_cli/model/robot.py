@@ -1,7 +1,8 @@
 """A robot: its mesh in the robot frame with supports, cables, feature points and markers.
 
 `load_robot` reads a robot TOML and checks it against its mesh; `Robot.fe_model` is the
-finite element model the estimators use, with the element type of `[mesh] element`. With P2
+finite element model the estimators use, with the element type of `[mesh] element`, or the
+reduced-order model of `[mesh] reduced` (with the element it was trained on). With P2
 elements the FE model has more nodes than the mesh: the mesh's n nodes first, in their order,
 then one per edge (`Robot.fe_mesh`), so positions[:n] of any FE configuration are the mesh's
 nodes.
@@ -9,6 +10,7 @@ nodes.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -21,6 +23,8 @@ from softforce_cli.fem.cables import Cable, CableInputs
 from softforce_cli.fem.element import ElementMesh, element_mesh
 from softforce_cli.fem.materials import Material
 from softforce_cli.fem.model import FEModel, lumped_masses
+from softforce_cli.fem.reduction.reduced_model import ReducedModel, Reduction
+from softforce_cli.fem.reduction.rom_file import load_reduction, reduced_model
 from softforce_cli.model.config import CableSpec, RobotConfig, load_config
 from softforce_cli.model.features import nearest_surface_nodes, spread_surface_nodes
 from softforce_cli.model.mesh import TetMesh
@@ -74,9 +78,21 @@ class Robot:
         return self.density_kg_mm3 * self.mesh.volume_mm3
 
     @cached_property
+    def reduction(self) -> Reduction | None:
+        """The trained reduction of `[mesh] reduced`, or None."""
+        path = self.config.mesh.reduced
+        return None if path is None else load_reduction(path)
+
+    @property
+    def element_name(self) -> str:
+        """The FE element: the reduced model's when `[mesh] reduced` is set (it was trained on
+        that element), else `[mesh] element`."""
+        return self.config.mesh.element if self.reduction is None else self.reduction.element
+
+    @cached_property
     def fe_mesh(self) -> ElementMesh:
-        """The FE nodes (the mesh's, then P2 mid-edge nodes) and elements of `[mesh] element`."""
-        return element_mesh(self.mesh.nodes_mm, self.mesh.tets, self.config.mesh.element)
+        """The FE nodes (the mesh's, then P2 mid-edge nodes) and elements of `element_name`."""
+        return element_mesh(self.mesh.nodes_mm, self.mesh.tets, self.element_name)
 
     @property
     def rest_nodes_mm(self) -> np.ndarray:
@@ -102,7 +118,16 @@ class Robot:
         )
 
     @cached_property
-    def fe_model(self) -> FEModel:
+    def fe_model(self) -> FEModel | ReducedModel:
+        """The model commands use: the reduced one when `[mesh] reduced` is set (ModelError
+        when it was trained for another mesh or material), else the full one."""
+        if self.reduction is None:
+            return self.full_fe_model
+        return reduced_model(self.full_fe_model, self.reduction, self.config.mesh.reduced)
+
+    @cached_property
+    def full_fe_model(self) -> FEModel:
+        """The full FE model of `element_name` (what a reduced model is trained on)."""
         fe_mesh = self.fe_mesh
         return FEModel(
             rest_nodes_mm=fe_mesh.nodes_mm,
@@ -134,6 +159,14 @@ class Robot:
             raise ModelError(f"{len(values)} actuation values for {len(self.cable_specs)} cables "
                              f"({', '.join(c.name for c in self.cable_specs)})")
         return CableInputs(tuple(c.control for c in self.cable_specs), values)
+
+
+def with_element(robot: Robot, element: str) -> Robot:
+    """The same robot with `[mesh] element` replaced and no reduced model (what `model
+    reduce` trains on)."""
+    mesh = dataclasses.replace(robot.config.mesh, element=element, reduced=None)
+    return Robot(dataclasses.replace(robot.config, mesh=mesh), robot.mesh, robot.fixed_nodes,
+                 robot.feature_nodes, robot.marker_ids)
 
 
 def load_robot(path: Path) -> Robot:

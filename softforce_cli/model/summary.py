@@ -20,7 +20,7 @@ def robot_summary(robot: Robot) -> dict[str, Any]:
         "mesh": str(robot.config.mesh.path),
         "nodes": mesh.node_count,
         "tetrahedra": mesh.tet_count,
-        "element": robot.config.mesh.element,
+        "element": robot.element_name,
         "fe_nodes": robot.fe_mesh.node_count,
         "surface_triangles": len(mesh.surface_faces),
         "bounds_mm": np.round(mesh.bounds_mm, 3).tolist(),

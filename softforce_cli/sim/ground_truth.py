@@ -1,7 +1,11 @@
-"""Ground truth of a scenario: the truth robot (fine mesh, its own law) solved under each load.
+"""Ground truth of a scenario: the truth robot (its own mesh, element and law) solved under
+each load.
 
-The truth robot is deliberately not the estimator's model: a finer mesh and, by default, a
-Neo-Hookean law, so that accuracy figures measured on synthetic data are not inverse crimes.
+The truth robot is deliberately not the estimator's model: another mesh, an element that does
+not lock (the sample truth: quadratic tetrahedra, within about 1 mm of the mesh-converged
+body, docs/locking.md) and, by default, a Neo-Hookean law, so that accuracy figures measured
+on synthetic data are not inverse crimes, and not flattered by a truth that locks like a
+linear-element estimator.
 """
 
 from __future__ import annotations

@@ -113,6 +113,8 @@ def run_simulation(simulation: Simulation, progress: Progress | None = None) -> 
         stop_on_interrupt=True,
         metadata={"scenario": simulation.scenario.source.name},
     )
+    if result.interrupted and result.frames == 0:
+        raise KeyboardInterrupt  # stopped before the first frame: no recording, so no truth
     document = _truth_document(
         simulation.scenario,
         simulation.robot,
@@ -276,6 +278,7 @@ def _truth_document(
         "truth_model": {
             "robot": scenario.robot.name,
             "law": robot.material.law,
+            "element": robot.element_name,
             "tetrahedra": robot.mesh.tet_count,
             "nodes": robot.mesh.node_count,
         },

@@ -1,0 +1,239 @@
+"""The reduced-order model of the quadratic element on the coarse default robot (issue 9).
+
+Rows: training time; one sensing update (reduced tangent, its factorisation, W for 51 normal
+effectors + 4 cables + 2 forces, free motion) through the unchanged fem.compliance seam;
+static solves; calibration from 9 markers; and the accuracy against the full P2 model on
+untrained load cases. The reduced model is trained once and cached in out/bench_reduced/
+(delete it to retrain); alone, this script prints the rows and writes the accuracy plot:
+
+    .venv/bin/python benchmarks/bench_reduced.py [--study]
+
+--study also sweeps the basis size and the ECSW tolerance on the cached snapshots and writes
+docs/figures/reduced_model_accuracy.png (minutes).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pickle
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.timing import BenchRow, median_time  # noqa: E402
+from softforce_cli.calibration.calibrate import calibrate  # noqa: E402
+from softforce_cli.calibration.synthetic import observed_markers, paper_transform  # noqa: E402
+from softforce_cli.errors import SolverError  # noqa: E402
+from softforce_cli.fem.attachment import Attachment  # noqa: E402
+from softforce_cli.fem.compliance import (  # noqa: E402
+    compliance,
+    effector_rows,
+    force_rows,
+    linearize,
+)
+from softforce_cli.fem.reduction.accuracy import (  # noqa: E402
+    LoadCase,
+    between_features,
+    compare,
+    respond,
+)
+from softforce_cli.fem.reduction.rom_file import save_reduction  # noqa: E402
+from softforce_cli.fem.reduction.train import TrainingSettings, train_robot  # noqa: E402
+from softforce_cli.fem.statics import solve_equilibrium  # noqa: E402
+from softforce_cli.model.robot import Robot, load_robot, with_element  # noqa: E402
+
+COARSE = ROOT / "sample_data" / "diamond" / "diamond.toml"
+CACHE = ROOT / "out" / "bench_reduced"
+ACTUATION = np.array([5.0, 5.0, 0.0, 0.0])
+CALIBRATION_MM = np.array([6.0, 2.0, 4.0, 9.0])
+FIGURE = ROOT / "docs" / "figures" / "reduced_model_accuracy.png"
+# Cables over 0-10 mm (the sensing and calibration cases use up to 9 mm): the file's 20 mm
+# with the other cables held folds the p2 Diamond beyond a quick Newton solve.
+SETTINGS = TrainingSettings(box_fraction=0.5)
+# (basis size, ECSW tolerance) pairs of the study (docs/reduced_model.md)
+STUDY_GRID = ((40, 1e-2), (60, 1e-2), (80, 1e-2), (60, 3e-3), (120, 1e-3))
+
+
+def reduced_robot(element: str = "p2") -> tuple[Robot, Robot]:
+    """(the full robot of `element`, the same robot reading the cached reduced model),
+    training and caching the reduced model first when it is missing."""
+    full = with_element(load_robot(COARSE), element)
+    path = CACHE / f"diamond_{element}.rom.npz"
+    if not path.exists():
+        CACHE.mkdir(parents=True, exist_ok=True)
+        reduction = train_robot(full, SETTINGS, cache=CACHE / f"{element}.snapshots.npz")
+        save_reduction(path, reduction, force=True)
+    mesh = dataclasses.replace(full.config.mesh, reduced=path)
+    return full, dataclasses.replace(full, config=dataclasses.replace(full.config, mesh=mesh))
+
+
+def update_callable(robot: Robot, x: np.ndarray, tensions: np.ndarray):
+    """One sensing frame's FE work at (x, tensions), as bench_fem.sensing_update does it."""
+    model = robot.fe_model
+    features = Attachment.at_nodes(robot.feature_nodes)
+    effectors = effector_rows(features, model.node_count, robot.feature_normals)
+    contacts = np.array([0, len(robot.feature_nodes) // 2])
+    forces = force_rows(features.subset(contacts), robot.feature_normals[contacts],
+                        model.node_count)
+    state = {"lin": linearize(model, x, tensions)}
+
+    def update() -> None:
+        state["lin"] = linearize(model, x, tensions, factorization=state["lin"].factorization)
+        compliance(state["lin"], effectors, forces)
+
+    return update
+
+
+def cases(robot: Robot, max_force_n: float) -> list[tuple[str, LoadCase]]:
+    """Untrained cases: interior actuations; one force between features; two contacts."""
+    points, normals = between_features(robot.mesh.nodes_mm, robot.mesh.surface_faces,
+                                       robot.feature_nodes, robot.fixed_nodes, 3)
+    inputs = robot.cable_inputs
+    return [
+        ("actuation 7, 3, 8, 5 mm", LoadCase(inputs(np.array([7.0, 3.0, 8.0, 5.0])),
+                                             points[:0], np.zeros((0, 3)))),
+        ("actuation 5, 5, 0, 0 mm + 0.6 N between features",
+         LoadCase(inputs(ACTUATION), points[:1], -0.6 * max_force_n * normals[:1])),
+        ("actuation 3, 8, 2, 6 mm + two contacts 0.4 N",
+         LoadCase(inputs(np.array([3.0, 8.0, 2.0, 6.0])), points[1:],
+                  -0.4 * max_force_n * normals[1:])),
+    ]
+
+
+_REFERENCES: dict[str, object] = {}
+
+
+def reference(full: Robot, name: str, case: LoadCase):
+    """The full model's answer to a case, computed once and cached (minutes for p2)."""
+    path = CACHE / "references.pkl"
+    if not _REFERENCES and path.exists():
+        _REFERENCES.update(pickle.loads(path.read_bytes()))
+    if name not in _REFERENCES:
+        _REFERENCES[name] = respond(full.fe_model, case, full.feature_nodes,
+                                    full.feature_normals)
+        path.write_bytes(pickle.dumps(_REFERENCES))
+    return _REFERENCES[name]
+
+
+def accuracy(full: Robot, reduced: Robot, max_force_n: float):
+    """[(case name, CaseErrors)] of the reduced model against the full one."""
+    out = []
+    for name, case in cases(full, max_force_n):
+        answer = respond(reduced.fe_model, case, full.feature_nodes, full.feature_normals)
+        out.append((name, compare(reference(full, name, case), answer, full.rest_nodes_mm,
+                                  full.mesh.surface_nodes)))
+    return out
+
+
+def run() -> list[BenchRow]:
+    started = time.perf_counter()
+    full, reduced = reduced_robot()
+    model = reduced.fe_model
+    info = model.reduction.info
+    rows = [BenchRow("Reduced model training (p2, coarse Diamond)", info["total_s"], 1,
+                     "< 10 min", f"{info['total_s'] / 60:.1f} min",
+                     f"{info['static_snapshots']} static snapshots, {info['modes']} modes, "
+                     f"{info['sampled_elements']} of {info['elements']} elements sampled; "
+                     f"prepared in {time.perf_counter() - started:.0f} s here")]
+    inputs = reduced.cable_inputs(ACTUATION)
+    equilibrium = solve_equilibrium(model, inputs)
+    update = update_callable(reduced, equilibrium.positions_mm, equilibrium.cable_tensions_n)
+    update_s = median_time(update, repeats=200, warmup=5)
+    rows.append(BenchRow("Reduced FE update, p2 (tangent, factorise, W: 51 normals + 4 cables"
+                         " + 2 forces)", update_s, 200, ">= 200 Hz", f"{1 / update_s:.0f} Hz",
+                         f"r = {info['modes']}, {info['sampled_elements']} elements; full p2:"
+                         " 1.4 Hz, full p1: 31 Hz (docs/locking.md)"))
+    cold_s = median_time(lambda: solve_equilibrium(model, inputs), repeats=20)
+    near = solve_equilibrium(model, reduced.cable_inputs(ACTUATION - [0.5, 0.0, 0.0, 0.0]))
+    warm_s = median_time(lambda: solve_equilibrium(model, inputs,
+                                                   start_mm=near.positions_mm), repeats=20)
+    rows.append(BenchRow("Reduced static solve from rest, cables 5,5,0,0 mm + gravity", cold_s,
+                         20, "< 20 ms", f"{cold_s * 1e3:.0f} ms",
+                         f"{equilibrium.iterations} Newton iterations"))
+    rows.append(BenchRow("Reduced static solve from a frame 0.5 mm away (tracking)", warm_s, 20,
+                         "< 20 ms", f"{warm_s * 1e3:.0f} ms", "as a sensing loop starts"))
+    positions = solve_equilibrium(model, reduced.cable_inputs(CALIBRATION_MM)).positions_mm
+    observed = observed_markers(reduced, positions, paper_transform())
+    calibrate(reduced, observed)
+    calibration_s = median_time(lambda: calibrate(reduced, observed), repeats=3, warmup=0)
+    rows.append(BenchRow("Calibration from 9 markers with the reduced p2 model", calibration_s,
+                         3, "< 2 s", f"{calibration_s:.2f} s", "paper's Table I protocol"))
+    for name, errors in accuracy(full, reduced, model.reduction.box.max_force_n):
+        worst = max(errors.W_relative.values())
+        rows.append(BenchRow(f"Reduced vs full p2: {name}", 0.0, 1, "<= 0.5 mm, W <= 5%",
+                             f"{errors.rms_mm:.3f} mm RMS, W {100 * worst:.1f}%",
+                             f"surface moves {errors.displacement_mm:.1f} mm RMS; max "
+                             f"{errors.max_mm:.2f} mm; tensions within "
+                             f"{errors.tension_n * 1e3:.1f} mN"))
+    return rows
+
+
+def study() -> None:
+    """Accuracy and update time vs basis size and ECSW tolerance, on the cached snapshots."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    full, _ = reduced_robot()
+    base = SETTINGS
+    references = [(name, reference(full, name, case), case)
+                  for name, case in cases(full, base.max_force_n)]
+    figures = []
+    for modes, tolerance in STUDY_GRID:
+        settings = dataclasses.replace(base, max_modes=modes, ecsw_tolerance=tolerance,
+                                       energy_tolerance=1e-12, validations=0)
+        reduction = train_robot(full, settings, cache=CACHE / "p2.snapshots.npz")
+        path = CACHE / "study.rom.npz"
+        save_reduction(path, reduction, force=True)
+        mesh = dataclasses.replace(full.config.mesh, reduced=path)
+        robot = dataclasses.replace(full, config=dataclasses.replace(full.config, mesh=mesh))
+        try:
+            errors = [compare(answer, respond(robot.fe_model, case, full.feature_nodes,
+                                              full.feature_normals),
+                              full.rest_nodes_mm, full.mesh.surface_nodes)
+                      for _, answer, case in references]
+        except SolverError as error:  # too few modes or elements to hold a case
+            print(modes, tolerance, len(reduction.elements), error, flush=True)
+            continue
+        eq = solve_equilibrium(robot.fe_model, robot.cable_inputs(ACTUATION))
+        update_s = median_time(update_callable(robot, eq.positions_mm,
+                                               eq.cable_tensions_n), repeats=30)
+        row = (reduction.mode_count, tolerance, len(reduction.elements),
+               max(e.rms_mm for e in errors),
+               max(max(e.W_relative.values()) for e in errors), update_s)
+        print(row, flush=True)
+        figures.append(row)
+    data = np.array(figures)
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    for tolerance in sorted(set(data[:, 1])):
+        pick = data[:, 1] == tolerance
+        label = f"ECSW tol {tolerance:g}"
+        axes[0].semilogy(data[pick, 0], data[pick, 3], "o-", label=label)
+        axes[1].semilogy(data[pick, 0], 100 * data[pick, 4], "o-", label=label)
+        axes[2].plot(data[pick, 2], 1 / data[pick, 5], "o", label=label)
+    axes[0].axhline(0.5, color="k", lw=0.8, ls="--")
+    axes[1].axhline(5.0, color="k", lw=0.8, ls="--")
+    axes[0].set(xlabel="modes r", ylabel="worst RMS surface error (mm)")
+    axes[1].set(xlabel="modes r", ylabel="worst W error |dW|/|W| (%)")
+    axes[2].set(xlabel="sampled elements", ylabel="update rate (Hz)")
+    for axis in axes:
+        axis.grid(alpha=0.3)
+    axes[0].legend()
+    fig.suptitle("Reduced P2 model of the coarse Diamond vs its full model (untrained cases)")
+    fig.tight_layout()
+    FIGURE.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(FIGURE, dpi=120)
+    print(f"wrote {FIGURE}")
+
+
+if __name__ == "__main__":
+    if "--study" in sys.argv:
+        study()
+    for bench_row in run():
+        print(bench_row)

@@ -1,0 +1,139 @@
+"""The coordinates a static solve and a linearisation work in, for full and reduced models.
+
+Both models describe a configuration by full node positions x (n, 3), which is what every
+caller sees; the solver works in c generalised coordinates with x = x_0 + T q:
+
+- the full model's T selects the free dofs (q are the free nodal coordinates), and its
+  tangent is the sparse K(x) over them, factorised by fem.linear_solver;
+- a reduced model's T = V is a basis (3n, r), and its tangent V^T K(x) V is dense (r, r)
+  (fem.reduction.reduced_model).
+
+fem.statics and fem.compliance are written once against this protocol: residuals are
+T^T (f_ext - g(x) + H^T lam), cable rows are H T, and a solution dq lifts to T dq.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+import scipy.sparse as sp
+
+from softforce_cli.fem.cables import CableInputs
+from softforce_cli.fem.linear_solver import Factorization
+
+if TYPE_CHECKING:
+    from softforce_cli.fem.model import FEModel
+    from softforce_cli.fem.statics import PointLoads
+
+
+class Factor(Protocol):
+    """A factorised tangent: solve() takes (c,) or (c, k); refactor() a new tangent."""
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray: ...
+
+    def refactor(self, matrix) -> Factor: ...
+
+
+class Coordinates(Protocol):
+    """Generalised coordinates q of a model, x = x_0 + T q (T: (3n, c))."""
+
+    @property
+    def size(self) -> int: ...
+
+    def lift(self, values: np.ndarray) -> np.ndarray:
+        """T v: (c,) or (c, k) -> (3n,) or (3n, k)."""
+        ...
+
+    def project(self, vectors: np.ndarray) -> np.ndarray:
+        """T^T v: (3n,) or (3n, k) -> (c,) or (c, k)."""
+        ...
+
+    def project_rows(self, rows) -> np.ndarray:
+        """H T: rows (k, 3n), dense or sparse -> (k, c), sparse only for sparse rows of the
+        full model."""
+        ...
+
+    def project_loads(self, loads: PointLoads | None) -> np.ndarray:
+        """T^T (gravity + loads) (c,) N: the dead loads in these coordinates."""
+        ...
+
+    def admissible(self, positions_mm: np.ndarray) -> np.ndarray:
+        """(n, 3): the configuration of the form x_0 + T q nearest to positions (n, 3)."""
+        ...
+
+    def energy_and_forces(self, positions_mm: np.ndarray) -> tuple[float, np.ndarray]:
+        """Elastic energy (mJ) and T^T g(x) (c,) N at positions (n, 3)."""
+        ...
+
+    def forces_and_tangent(self, positions_mm: np.ndarray, tensions_n: np.ndarray):
+        """T^T g(x) (c,) N and T^T (K(x) + K_cables) T (c, c) N/mm at positions (n, 3)."""
+        ...
+
+    def factorize(self, tangent, previous: Factor | None = None) -> Factor:
+        """Factors of a tangent, reusing `previous`'s analysis when given."""
+        ...
+
+    def check_load(self, inputs: CableInputs, external_n: np.ndarray) -> None:
+        """Warn (warnings.warn) when cable inputs and external forces (n, 3) N are outside
+        what the coordinates were built for."""
+        ...
+
+    def reactions(self, positions_mm: np.ndarray, external_n: np.ndarray) -> np.ndarray:
+        """(k, 3) N the supports exert on the clamped nodes, for positions (n, 3) and every
+        force but the elastic ones and the supports' (n, 3) N (loads, gravity, cables)."""
+        ...
+
+
+class FreeDofs:
+    """The full model's coordinates: q are the free nodal coordinates (T selects them)."""
+
+    def __init__(self, model: FEModel) -> None:
+        self.model = model
+        self.free = model.free_dofs
+
+    @property
+    def size(self) -> int:
+        return len(self.free)
+
+    def lift(self, values: np.ndarray) -> np.ndarray:
+        out = np.zeros((3 * self.model.node_count, *np.shape(values)[1:]))
+        out[self.free] = values
+        return out
+
+    def project(self, vectors: np.ndarray) -> np.ndarray:
+        return np.asarray(vectors)[self.free]
+
+    def project_rows(self, rows):
+        if sp.issparse(rows):
+            return rows.tocsc()[:, self.free].tocsr()
+        return np.asarray(rows)[:, self.free]
+
+    def project_loads(self, loads: PointLoads | None) -> np.ndarray:
+        forces = self.model.gravity_forces_n
+        if loads is not None:
+            forces = forces + loads.nodal(self.model.node_count)
+        return forces.ravel()[self.free]
+
+    def admissible(self, positions_mm: np.ndarray) -> np.ndarray:
+        return np.array(positions_mm, dtype=float)
+
+    def energy_and_forces(self, positions_mm: np.ndarray) -> tuple[float, np.ndarray]:
+        energy, forces = self.model.energy_and_forces(positions_mm)
+        return energy, forces.ravel()[self.free]
+
+    def forces_and_tangent(self, positions_mm: np.ndarray, tensions_n: np.ndarray
+                           ) -> tuple[np.ndarray, sp.csr_matrix]:
+        internal, stiffness = self.model.internal_forces_and_stiffness(positions_mm)
+        tangent = stiffness + self.model.cable_stiffness(positions_mm, tensions_n)
+        return internal.ravel()[self.free], tangent
+
+    def factorize(self, tangent: sp.spmatrix, previous: Factor | None = None) -> Factor:
+        return Factorization(tangent) if previous is None else previous.refactor(tangent)
+
+    def check_load(self, inputs: CableInputs, external_n: np.ndarray) -> None:
+        """The full model holds for any load: nothing to check."""
+
+    def reactions(self, positions_mm: np.ndarray, external_n: np.ndarray) -> np.ndarray:
+        total = external_n - self.model.internal_forces(positions_mm)
+        return -total[self.model.fixed_nodes]

@@ -1,0 +1,255 @@
+"""A reduced-order FE model: Galerkin projection on a POD basis with ECSW hyper-reduction.
+
+Configurations are x = x_rest + V q with V (3n, r) orthonormal (zero on clamped dofs), and
+the reduced internal forces and tangent are sums over a few sampled elements e with weights
+w_e >= 0 (Farhat et al., "Dimensional reduction of nonlinear finite element dynamic models
+with finite rotations and energy-based mesh sampling and weighting", IJNME 98, 2014):
+
+    f_r(x) = sum_e w_e V_e^T g_e(x),     K_r(x) = sum_e w_e V_e^T K_e(x) V_e.
+
+Per quadrature point p of a sampled element the operator G_p = B_p V_e (9, r) is formed once,
+so f_r = sum_p w_p G_p^T vec P_p and K_r = sum_p w_p G_p^T A_p G_p are two BLAS products, and
+K_r is exactly the derivative of f_r (Newton converges quadratically). Cables, point loads
+and gravity are not hyper-reduced: they touch a handful of dofs, or are projected once.
+
+The model keeps the full model's interface (node_count, rest_nodes_mm, cables,
+cable_jacobian, ... are the full model's), and its `coordinates` make fem.statics and
+fem.compliance work on it unchanged; callers still see full node positions (n, 3).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from softforce_cli.fem.assembly import assemble_vector
+from softforce_cli.fem.cables import CableInputs
+from softforce_cli.fem.element import deformation_gradients, gradient_operators
+from softforce_cli.fem.model import FEModel
+from softforce_cli.fem.reduction.dense import DenseFactorization
+
+# An actuation beyond the training box by more than this fraction of the box's width warns.
+BOX_MARGIN = 0.1
+# External forces (besides gravity) beyond this multiple of the largest trained one warn.
+FORCE_MARGIN = 1.5
+
+
+class ReducedModelWarning(UserWarning):
+    """A reduced model is used outside the loads and actuations it was trained on."""
+
+
+@dataclass(frozen=True)
+class TrainingBox:
+    """What a reduced model was trained on, and how well it did there.
+
+    controls       : per cable, "displacement" or "force" (the robot file's).
+    cable_min, cable_max : (a,) the actuation box, in each cable's control units (mm or N).
+    max_force_n    : the largest resultant of the contact forces in the training loads (N).
+    gravity_mm_s2  : (3,) the gravity trained with.
+    rms_error_mm   : RMS surface displacement error of the reduced model against the full
+                     one on validation loads inside the box (mm), NaN when not measured.
+    """
+
+    controls: tuple[str, ...]
+    cable_min: np.ndarray
+    cable_max: np.ndarray
+    max_force_n: float
+    gravity_mm_s2: np.ndarray
+    rms_error_mm: float
+
+
+@dataclass(frozen=True)
+class Reduction:
+    """A trained reduction of one FE model.
+
+    element     : the element it was trained with ("p2", "p2-p0", "p1").
+    basis       : (3n, r) orthonormal POD modes, zero on clamped dofs.
+    elements    : (s,) int64 sampled elements (ECSW).
+    weights     : (s,) > 0 their weights.
+    box         : the training box.
+    fingerprint : {part: hash} of the mesh, element, supports, material and cables.
+    young_modulus_mpa : E it was trained with (forces scale with E: any E reuses it).
+    info        : training figures (modes, energy threshold, ECSW residual, times), for docs.
+    """
+
+    element: str
+    basis: np.ndarray
+    elements: np.ndarray
+    weights: np.ndarray
+    box: TrainingBox
+    fingerprint: dict[str, str]
+    young_modulus_mpa: float
+    info: dict[str, Any]
+
+    @property
+    def mode_count(self) -> int:
+        return self.basis.shape[1]
+
+
+@dataclass(frozen=True)
+class ReducedModel:
+    """A full FEModel and a Reduction of it; reads as the full model except for its
+    `coordinates`, through which static solves and linearisations run reduced."""
+
+    full: FEModel
+    reduction: Reduction
+
+    def __getattr__(self, name: str) -> Any:
+        # every attribute that is not reduced (nodes, cables, gravity, ...) is the full model's
+        if name.startswith("__") or name in ("full", "reduction"):
+            raise AttributeError(name)
+        return getattr(self.full, name)
+
+    @property
+    def node_count(self) -> int:
+        return self.full.node_count
+
+    @property
+    def rest_nodes_mm(self) -> np.ndarray:
+        return self.full.rest_nodes_mm
+
+    @cached_property
+    def coordinates(self) -> ReducedCoordinates:
+        return ReducedCoordinates(self)
+
+    def check_load(self, inputs: CableInputs, external_n: np.ndarray) -> None:
+        """Warn (ReducedModelWarning) for actuations or forces far outside the training box,
+        with the error measured inside it as the scale of what to expect."""
+        box = self.reduction.box
+        values = np.asarray(inputs.values, dtype=float)
+        width = np.maximum(box.cable_max - box.cable_min, 1e-9)
+        beyond = np.maximum(box.cable_min - values, values - box.cable_max) / width
+        same = np.array([c == d for c, d in zip(inputs.control, box.controls, strict=False)])
+        scale = f"{box.rms_error_mm:.2g} mm RMS inside it" if np.isfinite(
+            box.rms_error_mm) else "not measured"
+        problems = []
+        if len(beyond) and (np.any(beyond[same] > BOX_MARGIN) or not same.all()):
+            worst = int(np.argmax(np.where(same, beyond, np.inf)))
+            problems.append(f"cable {self.cables[worst].name!r} at {values[worst]:g} is "
+                            f"outside the trained [{box.cable_min[worst]:g}, "
+                            f"{box.cable_max[worst]:g}]" if same[worst] else
+                            f"cable {self.cables[worst].name!r} control changed")
+        loads = np.asarray(external_n) - self.full.gravity_forces_n
+        force = float(np.linalg.norm(loads.sum(axis=0)))
+        if force > FORCE_MARGIN * box.max_force_n:
+            problems.append(f"external force {force:.3g} N exceeds the trained "
+                            f"{box.max_force_n:.3g} N")
+        if not np.allclose(self.full.gravity_mm_s2, box.gravity_mm_s2, atol=1e-6 * 9810):
+            problems.append("gravity differs from the trained one")
+        if problems:
+            ratio = max([*beyond[same], force / max(box.max_force_n, 1e-12) - 1.0, 0.0])
+            warnings.warn(ReducedModelWarning(
+                f"reduced model used outside its training box ({'; '.join(problems)}): "
+                f"its error there is not bounded (estimate {1 + ratio:.1f} x the {scale}); "
+                "retrain with `softforce model reduce` over a wider box"), stacklevel=3)
+
+
+class ReducedCoordinates:
+    """fem.coordinates protocol for x = x_rest + V q with hyper-reduced element sums."""
+
+    def __init__(self, model: ReducedModel) -> None:
+        full, reduction = model.full, model.reduction
+        self.model = model
+        self.full = full
+        self.basis = np.ascontiguousarray(reduction.basis)
+        self.rest = full.rest_nodes_mm
+        sampled = reduction.elements
+        self.tets = full.tets[sampled]
+        self.gradients = full.shape_gradients[sampled]  # (s, q, k, 3)
+        # quadrature weight of each point times its element's ECSW weight (s, q) mm^3
+        self.point_weights = full.quadrature_weights_mm3[sampled] * reduction.weights[:, None]
+        local = self.basis[full.element_dofs[sampled]]  # (s, 3k, r)
+        operators = gradient_operators(self.gradients) @ local[:, None]  # (s, q, 9, r)
+        r = self.basis.shape[1]
+        self.points = operators.reshape(-1, 9, r)  # (p, 9, r)
+        self.stacked = operators.reshape(-1, r)  # (9p, r)
+        # elements with clamped and free nodes: an element with every node clamped stays at
+        # rest and exerts nothing
+        clamped = np.isin(full.tets, full.fixed_nodes)
+        supports = np.flatnonzero(clamped.any(axis=1) & ~clamped.all(axis=1))
+        self.support_elements = supports
+        self.support_dofs = full.element_dofs[supports]
+        # projected once: reading V (3n, r) costs more than the whole hyper-reduced update
+        self.gravity = self.basis.T @ full.gravity_forces_n.ravel()
+
+    @property
+    def size(self) -> int:
+        return self.basis.shape[1]
+
+    def lift(self, values: np.ndarray) -> np.ndarray:
+        return self.basis @ values
+
+    def project(self, vectors: np.ndarray) -> np.ndarray:
+        return self.basis.T @ vectors
+
+    def project_rows(self, rows) -> np.ndarray:
+        if sp.issparse(rows):
+            return np.asarray(rows @ self.basis)
+        rows = np.asarray(rows)
+        used = np.flatnonzero(np.any(rows != 0.0, axis=0))  # rows touch few dofs
+        return rows[:, used] @ self.basis[used]
+
+    def project_loads(self, loads) -> np.ndarray:
+        """V^T (gravity + loads): gravity's projection once, the point loads' few rows."""
+        applied = self.gravity.copy()
+        if loads is not None:
+            rows = loads.points.cartesian_rows(self.full.node_count)
+            applied += self.project_rows(rows).T @ np.asarray(loads.forces_n, float).ravel()
+        return applied
+
+    def admissible(self, positions_mm: np.ndarray) -> np.ndarray:
+        offset = self.basis.T @ (np.asarray(positions_mm) - self.rest).ravel()
+        return self.rest + (self.basis @ offset).reshape(-1, 3)
+
+    def _stresses(self, positions_mm: np.ndarray, with_tangent: bool):
+        F = deformation_gradients(positions_mm, self.tets, self.gradients)
+        return self.full._constitutive(F, with_tangent)
+
+    def _forces(self, stress: np.ndarray) -> np.ndarray:
+        weighted = self.point_weights[..., None] * stress.reshape(*stress.shape[:2], 9)
+        return self.stacked.T @ weighted.ravel()
+
+    def energy_and_forces(self, positions_mm: np.ndarray) -> tuple[float, np.ndarray]:
+        density, stress = self._stresses(positions_mm, with_tangent=False)
+        return float((density * self.point_weights).sum()), self._forces(stress)
+
+    def forces_and_tangent(self, positions_mm: np.ndarray, tensions_n: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray]:
+        stress, tangent = self._stresses(positions_mm, with_tangent=True)
+        weighted = (self.point_weights[..., None, None] * tangent).reshape(-1, 9, 9)
+        tangent_r = self.stacked.T @ (weighted @ self.points).reshape(-1, self.size)
+        for cable, tension in zip(self.full.cables, tensions_n, strict=True):
+            if tension != 0.0:
+                local = self.basis[cable.dofs]
+                tangent_r += local.T @ cable.geometric_stiffness(positions_mm, tension) @ local
+        return self._forces(stress), 0.5 * (tangent_r + tangent_r.T)
+
+    def factorize(self, tangent: np.ndarray, previous: DenseFactorization | None = None
+                  ) -> DenseFactorization:
+        return DenseFactorization(tangent) if previous is None else previous.refactor(tangent)
+
+    def check_load(self, inputs: CableInputs, external_n: np.ndarray) -> None:
+        self.model.check_load(inputs, external_n)
+
+    def reactions(self, positions_mm: np.ndarray, external_n: np.ndarray) -> np.ndarray:
+        """The elastic forces on the clamped nodes, from the elements that touch them, shifted
+        so that the supports hold exactly the applied loads' resultant.
+
+        The Galerkin equilibrium holds in the basis' span only, so the free nodes next to the
+        supports keep small residual forces; the body's internal forces sum to zero, so the
+        exact total reaction is -(sum of external forces) for any configuration. The shift is
+        shared by the clamped nodes' lumped masses (their tributary volumes).
+        """
+        fixed = self.full.fixed_nodes
+        _, forces, _ = self.full.element_terms(positions_mm, self.support_elements, False)
+        internal = assemble_vector(forces, self.support_dofs, 3 * self.full.node_count)
+        local = -(external_n - internal.reshape(-1, 3))[fixed]
+        missing = -external_n.sum(axis=0) - local.sum(axis=0)
+        masses = self.full.node_masses_kg[fixed]
+        share = masses / masses.sum() if masses.sum() > 0 else np.full(len(fixed), 1 / len(fixed))
+        return local + share[:, None] * missing

@@ -1,0 +1,192 @@
+"""Training data for a reduced model, from the full (accurate-element) model.
+
+Three kinds of snapshots, all in the full model:
+- static equilibria over the actuation box (with the model's gravity): the rest, each cable
+  at its max, each pair of neighbouring cables at their max, all at mid-range, and a few
+  Halton points inside the box;
+- linear responses K^-1 H^T to unit forces along x, y, z at every feature point and to every
+  cable, at a few of those equilibria: the columns the compliance W is made of;
+- loaded states: each equilibrium plus the first-order response to one or two contact forces
+  pressing along the inward normal at random feature points (up to max_force_n).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import qmc
+
+from softforce_cli.errors import SolverError
+from softforce_cli.fem.attachment import Attachment
+from softforce_cli.fem.cables import CableInputs
+from softforce_cli.fem.compliance import linearize
+from softforce_cli.fem.model import FEModel
+from softforce_cli.fem.statics import Equilibrium, SolverSettings, solve_equilibrium
+from softforce_cli.io.atomic import atomic_path
+
+# Contact forces in training reach this by default (N): the paper's heaviest weight, 1.06 N.
+MAX_FORCE_N = 1.0
+SEED = 20181016  # fixed: training is reproducible
+# A training solve that needs more Newton iterations than this is retried in smaller steps
+# (a converging one takes ~10 from rest); failing fast saves minutes on a quadratic mesh.
+ATTEMPT = SolverSettings(max_iterations=20)
+
+
+@dataclass(frozen=True)
+class TrainingSet:
+    """Snapshots of a full model.
+
+    actuations     : (S, a) cable inputs of the static snapshots (control units).
+    positions_mm   : (S, n, 3) their equilibria.
+    tensions_n     : (S, a) their cable tensions.
+    responses      : (3n, R) mm/N unit-force and cable responses at the response states.
+    response_rows  : (R0, 3n) the feature rows H (3 per feature) the responses were asked for
+                     (cable rows follow them in `responses`, a per state).
+    response_states: (t,) indices of the static snapshots where responses were taken.
+    loaded_mm      : (L, n, 3) equilibria plus first-order contact responses.
+    max_force_n    : the largest contact force used.
+    """
+
+    actuations: np.ndarray
+    positions_mm: np.ndarray
+    tensions_n: np.ndarray
+    responses: np.ndarray
+    response_states: np.ndarray
+    loaded_mm: np.ndarray
+    max_force_n: float
+
+
+def actuation_design(low: np.ndarray, high: np.ndarray, extra: int = 2) -> np.ndarray:
+    """(S, a) training actuations in the box [low, high]^a: low, each cable at high alone,
+    each pair of neighbouring cables (i, i + 1 mod a) at high, all at mid-range, and `extra`
+    scrambled Halton points (fixed seed)."""
+    low, high = np.asarray(low, float), np.asarray(high, float)
+    a = len(low)
+    rows = [low.copy()]
+    for i in range(a):
+        row = low.copy()
+        row[i] = high[i]
+        rows.append(row)
+    if a > 2:
+        for i in range(a):
+            row = low.copy()
+            row[[i, (i + 1) % a]] = high[[i, (i + 1) % a]]
+            rows.append(row)
+    if a > 1:
+        rows.append(0.5 * (low + high))
+    if extra and a:
+        rows.extend(low + qmc.Halton(a, seed=SEED).random(extra) * (high - low))
+    return np.unique(np.array(rows).reshape(-1, a), axis=0)
+
+
+def response_state_indices(actuations: np.ndarray, count: int = 4) -> np.ndarray:
+    """Up to `count` snapshots to take responses at: the first (the lowest actuation), then
+    each next the one farthest from those chosen (spread over the box)."""
+    chosen = [int(np.argmin(actuations.sum(axis=1)))]
+    while len(chosen) < min(count, len(actuations)):
+        distance = np.min(np.linalg.norm(actuations[:, None] - actuations[chosen][None],
+                                         axis=2), axis=1)
+        chosen.append(int(np.argmax(distance)))
+    return np.array(chosen, dtype=np.int64)
+
+
+def collect(model: FEModel, controls: tuple[str, ...], actuations: np.ndarray,
+            feature_nodes: np.ndarray, feature_normals: np.ndarray,
+            max_force_n: float = MAX_FORCE_N, response_states: int = 4,
+            progress: Callable[[int, int], None] | None = None) -> TrainingSet:
+    """Solve, linearise and load the full model at every training actuation (S, a)."""
+    rng = np.random.default_rng(SEED)
+    states = response_state_indices(actuations, response_states)
+    features = Attachment.at_nodes(feature_nodes)
+    feature_rows = features.cartesian_rows(model.node_count)
+    total = 2 * len(actuations)
+    done = 0
+    positions, tensions, responses, loaded = [], [], [], []
+    factor = None
+    solved: list[tuple[np.ndarray, np.ndarray]] = []
+    for index, values in enumerate(actuations):
+        equilibrium = _continued(model, controls, values, solved)
+        solved.append((values, equilibrium.positions_mm))
+        done += 1
+        if progress is not None:
+            progress(done, total)
+        x = equilibrium.positions_mm
+        positions.append(x)
+        tensions.append(equilibrium.cable_tensions_n)
+        lin = linearize(model, x, equilibrium.cable_tensions_n, factorization=factor)
+        factor = lin.factorization
+        if index in states:
+            rows = sp_vstack_dense(feature_rows, model.cable_jacobian(x))
+            responses.append(lin.responses(rows))
+        # one contact, then two, pressing inwards at random features
+        for count in (1, 2):
+            picks = rng.choice(len(feature_nodes), size=count, replace=False)
+            magnitudes = rng.uniform(0.3, 1.0, count) * max_force_n / count
+            rows = features.subset(picks).directional_rows(-feature_normals[picks],
+                                                           model.node_count)
+            moved = lin.responses(rows) @ magnitudes
+            loaded.append(x + moved.reshape(-1, 3))
+        done += 1
+        if progress is not None:
+            progress(done, total)
+    return TrainingSet(
+        actuations=np.asarray(actuations, float), positions_mm=np.array(positions),
+        tensions_n=np.array(tensions), responses=np.hstack(responses),
+        response_states=states, loaded_mm=np.array(loaded), max_force_n=float(max_force_n),
+    )
+
+
+def _continued(model: FEModel, controls: tuple[str, ...], target: np.ndarray,
+               solved: list[tuple[np.ndarray, np.ndarray]]) -> Equilibrium:
+    """The equilibrium at actuation `target`, from the nearest solved one, in 1, 2, 4 or 8
+    equal steps of actuation when Newton's method fails on the whole way (far corners of the
+    box fold the body further than one Newton run from rest can go)."""
+    if solved:
+        nearest = min(solved, key=lambda pair: float(np.linalg.norm(pair[0] - target)))
+    else:
+        nearest = (np.zeros_like(target), model.rest_nodes_mm)
+    for steps in (1, 2, 4, 8):
+        try:
+            positions = nearest[1]
+            for k in range(1, steps + 1):
+                values = nearest[0] + k / steps * (target - nearest[0])
+                equilibrium = solve_equilibrium(model, CableInputs(controls, values),
+                                                start_mm=positions, settings=ATTEMPT)
+                positions = equilibrium.positions_mm
+            return equilibrium
+        except SolverError:
+            continue
+    raise SolverError(f"training could not reach actuation {np.round(target, 3).tolist()} even "
+                      "in 8 steps; narrow the cables' [min, max] in the robot file")
+
+
+def save_training_set(path: Path, data: TrainingSet, key: str) -> None:
+    """Cache snapshots (npz) under a key naming the model and the design they belong to."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays = {f.name: np.asarray(getattr(data, f.name)) for f in dataclasses.fields(data)}
+    with atomic_path(path, force=True) as temporary, open(temporary, "wb") as stream:
+        np.savez(stream, key=np.array(key), **arrays)
+
+
+def load_training_set(path: Path, key: str) -> TrainingSet | None:
+    """The cached snapshots at `path` if they were made for `key`, else None."""
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if str(data["key"]) != key:
+                return None
+            fields = {f.name: data[f.name] for f in dataclasses.fields(TrainingSet)}
+    except (OSError, ValueError, KeyError):
+        return None
+    fields["max_force_n"] = float(fields["max_force_n"])
+    return TrainingSet(**fields)
+
+
+def sp_vstack_dense(sparse_rows, dense_rows: np.ndarray) -> np.ndarray:
+    """Dense (k1 + k2, 3n) of sparse rows (k1, 3n) over dense rows (k2, 3n)."""
+    return np.vstack([sparse_rows.toarray(), dense_rows])

@@ -1,0 +1,205 @@
+"""Offline training of a reduced model: snapshots, POD basis, ECSW sampling, validation."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import qmc
+
+from softforce_cli.errors import ModelError
+from softforce_cli.fem.cables import CableInputs
+from softforce_cli.fem.model import FEModel
+from softforce_cli.fem.reduction.ecsw import (
+    ECSW_TOLERANCE,
+    force_contributions,
+    sparse_nnls,
+    tangent_contributions,
+)
+from softforce_cli.fem.reduction.pod import ENERGY_TOLERANCE, pod_basis, projection_errors
+from softforce_cli.fem.reduction.reduced_model import ReducedModel, Reduction, TrainingBox
+from softforce_cli.fem.reduction.rom_file import fingerprint
+from softforce_cli.fem.reduction.snapshots import (
+    MAX_FORCE_N,
+    SEED,
+    TrainingSet,
+    actuation_design,
+    collect,
+    load_training_set,
+    save_training_set,
+)
+from softforce_cli.fem.statics import solve_equilibrium
+
+
+@dataclass(frozen=True)
+class TrainingSettings:
+    """Training knobs, with why.
+
+    energy_tolerance   : POD energy left out (pod.ENERGY_TOLERANCE).
+    ecsw_tolerance     : relative residual of the sampled element sums (ecsw.ECSW_TOLERANCE).
+    max_modes          : cap on the basis size: the update costs ~ sampled points x r^2.
+    max_elements       : cap on the sampled elements (None: the tolerance decides).
+    tangent_directions : reduced directions the tangent is trained along, per response state.
+    extra_actuations   : Halton points inside the box besides its structured points.
+    response_states    : equilibria where unit-force responses are taken (12: every static
+                         snapshot of 4 cables; with 4 of them W_aa erred 19% instead of 13%).
+    max_force_n        : largest contact force of the loaded states (N).
+    validations        : untrained actuations the result is checked on (full solves).
+    box_fraction       : train over [min, min + fraction (max - min)] of each cable: the
+                         robot file's max may fold the accurate (softer) model beyond what
+                         the sensing uses (the coarse Diamond's p2 model with one cable at
+                         20 mm and the others held needs 25+ Newton steps).
+    """
+
+    energy_tolerance: float = ENERGY_TOLERANCE
+    ecsw_tolerance: float = ECSW_TOLERANCE
+    max_modes: int = 120
+    max_elements: int | None = None
+    tangent_directions: int = 8
+    extra_actuations: int = 2
+    response_states: int = 12
+    max_force_n: float = MAX_FORCE_N
+    validations: int = 2
+    box_fraction: float = 1.0
+
+
+def train(model: FEModel, controls: tuple[str, ...], low: np.ndarray, high: np.ndarray,
+          feature_nodes: np.ndarray, feature_normals: np.ndarray, surface_nodes: np.ndarray,
+          settings: TrainingSettings = TrainingSettings(),
+          progress: Callable[[int, int], None] | None = None,
+          cache: Path | None = None) -> Reduction:
+    """Train a reduction of `model` over the actuation box [low, high] (a,) in each cable's
+    control units, with responses at the feature nodes (p,) along their normals (p, 3).
+
+    The snapshots (nearly all the time) are kept in `cache` (npz) when given, and reused by a
+    later run on the same model, box and settings: a training stopped after them resumes there.
+    """
+    started = time.perf_counter()
+    actuations = actuation_design(low, high, settings.extra_actuations)
+    total = 2 * len(actuations) + 2 + settings.validations
+
+    def step(done: int) -> None:
+        if progress is not None:
+            progress(done, total)
+
+    key = "|".join([json.dumps(fingerprint(model), sort_keys=True), repr(controls),
+                    np.round(actuations, 9).tobytes().hex(), repr(settings.max_force_n),
+                    repr(settings.response_states), repr(np.asarray(feature_nodes).tolist())])
+    data = None if cache is None else load_training_set(cache, key)
+    if data is None:
+        data = collect(model, controls, actuations, feature_nodes, feature_normals,
+                       settings.max_force_n, settings.response_states,
+                       lambda done, _: step(done))
+        if cache is not None:
+            save_training_set(cache, data, key)
+    snapshots_s = time.perf_counter() - started
+    rest = model.rest_nodes_mm.ravel()
+    columns = np.hstack([(data.positions_mm.reshape(len(actuations), -1) - rest).T,
+                         (data.loaded_mm.reshape(len(data.loaded_mm), -1) - rest).T,
+                         data.responses])
+    basis, singular = pod_basis(columns, settings.energy_tolerance, settings.max_modes)
+    worst_projection = float(projection_errors(basis, columns).max())
+    step(2 * len(actuations) + 1)
+    pod_s = time.perf_counter() - started - snapshots_s
+    C, b = ecsw_system(model, basis, data, settings.tangent_directions)
+    sampling = sparse_nnls(C, b, settings.ecsw_tolerance, settings.max_elements)
+    step(2 * len(actuations) + 2)
+    ecsw_s = time.perf_counter() - started - snapshots_s - pod_s
+    box = TrainingBox(tuple(controls), np.asarray(low, float), np.asarray(high, float),
+                      data.max_force_n, np.asarray(model.gravity_mm_s2, float), float("nan"))
+    info = {
+        "modes": int(basis.shape[1]), "sampled_elements": len(sampling.elements),
+        "elements": len(model.tets), "snapshot_columns": int(columns.shape[1]),
+        "static_snapshots": len(actuations), "energy_tolerance": settings.energy_tolerance,
+        "worst_projection_error": worst_projection,
+        "ecsw_tolerance": settings.ecsw_tolerance,
+        "ecsw_residual": sampling.relative_residual,
+        "singular_values": singular[: 2 * basis.shape[1]].tolist(),
+        "snapshots_s": snapshots_s, "pod_s": pod_s, "ecsw_s": ecsw_s,
+    }
+    reduction = Reduction(model.element.name, basis, sampling.elements, sampling.weights, box,
+                          fingerprint(model), model.material.young_modulus_mpa, info)
+    errors = validate(model, reduction, controls, low, high, surface_nodes,
+                      settings.validations, lambda done: step(total - settings.validations
+                                                              + done))
+    rms = float(np.sqrt(np.mean(np.square(errors)))) if len(errors) else float("nan")
+    info.update(validation_rms_mm=errors.tolist(),
+                validation_s=time.perf_counter() - started - snapshots_s - pod_s - ecsw_s,
+                total_s=time.perf_counter() - started)
+    return Reduction(reduction.element, basis, sampling.elements, sampling.weights,
+                     TrainingBox(box.controls, box.cable_min, box.cable_max, box.max_force_n,
+                                 box.gravity_mm_s2, rms),
+                     reduction.fingerprint, reduction.young_modulus_mpa, info)
+
+
+def train_robot(robot, settings: TrainingSettings = TrainingSettings(),
+                progress: Callable[[int, int], None] | None = None,
+                cache: Path | None = None) -> Reduction:
+    """Train a reduction of a Robot's full FE model (model.robot.Robot, its element) over the
+    cables' [min, max] box; ModelError when a cable has no finite max."""
+    specs = robot.cable_specs
+    low = np.array([c.min for c in specs], dtype=float)
+    high = np.array([c.max for c in specs], dtype=float)
+    for spec in specs:
+        if not np.isfinite(spec.max) or not np.isfinite(spec.min):
+            raise ModelError(f"{robot.config.source}: cable {spec.name!r} has no finite min/max;"
+                             " set both in the robot file: they are the box a reduced model is "
+                             "trained over")
+    high = low + settings.box_fraction * (high - low)
+    return train(robot.full_fe_model, tuple(c.control for c in specs), low, high,
+                 robot.feature_nodes, robot.feature_normals, robot.mesh.surface_nodes,
+                 settings, progress, cache)
+
+
+def ecsw_system(model: FEModel, basis: np.ndarray, data: TrainingSet, directions: int
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """C (rows, m) and b (rows,) of the ECSW fit: reduced internal forces at every training
+    state projected on the basis, and reduced tangents along the leading reduced response
+    directions at the response states; each block scaled to unit norm so that every state
+    counts alike."""
+    rest = model.rest_nodes_mm
+    blocks = []
+    states = np.concatenate([data.positions_mm, data.loaded_mm])
+    for x in states:
+        projected = rest + (basis @ (basis.T @ (x - rest).ravel())).reshape(-1, 3)
+        blocks.append(force_contributions(model, basis, projected))
+    r = basis.shape[1]
+    per_state = data.responses.shape[1] // len(data.response_states)
+    for j, index in enumerate(data.response_states):
+        x = data.positions_mm[index]
+        projected = rest + (basis @ (basis.T @ (x - rest).ravel())).reshape(-1, 3)
+        reduced = basis.T @ data.responses[:, j * per_state:(j + 1) * per_state]
+        leading = np.linalg.svd(reduced, full_matrices=False)[0][:, :directions]
+        contributions = tangent_contributions(model, basis, projected, leading)
+        blocks.extend(np.split(contributions, leading.shape[1]) if r else [])
+    C_rows, b_rows = [], []
+    for block in blocks:
+        target = block.sum(axis=1)
+        norm = float(np.linalg.norm(target))
+        if norm > 0.0:
+            C_rows.append(block / norm)
+            b_rows.append(target / norm)
+    return np.vstack(C_rows), np.concatenate(b_rows)
+
+
+def validate(model: FEModel, reduction: Reduction, controls: tuple[str, ...], low: np.ndarray,
+             high: np.ndarray, surface_nodes: np.ndarray, count: int,
+             progress: Callable[[int], None]) -> np.ndarray:
+    """(count,) RMS surface displacement error (mm) of the reduced model against the full one
+    at untrained actuations (Halton points of another seed)."""
+    if count == 0 or not len(low):
+        return np.zeros(0)
+    reduced = ReducedModel(model, reduction)
+    points = low + qmc.Halton(len(low), seed=SEED + 1).random(count) * (high - low)
+    errors = []
+    for i, values in enumerate(points):
+        inputs = CableInputs(controls, values)
+        full = solve_equilibrium(model, inputs).positions_mm[surface_nodes]
+        approx = solve_equilibrium(reduced, inputs).positions_mm[surface_nodes]
+        errors.append(float(np.sqrt(np.mean(np.sum((full - approx) ** 2, axis=1)))))
+        progress(i + 1)
+    return np.array(errors)

@@ -1,0 +1,83 @@
+"""The sparse factorisation: Cholesky, anchored Cholesky for a few negative modes, L D L^T."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as sla
+
+from softforce_cli.errors import SolverError
+from softforce_cli.fem.linear_solver import Factorization
+
+N = 10  # a 10 x 10 x 10 grid
+
+
+def grid_laplacian(clamped: bool = True) -> sp.csr_matrix:
+    """7-point Laplacian on the grid, Dirichlet (clamped, SPD) or Neumann (singular)."""
+    path = sp.diags([-np.ones(N - 1), 2 * np.ones(N), -np.ones(N - 1)], [-1, 0, 1])
+    if not clamped:
+        path = path.tolil()
+        path[0, 0] = path[-1, -1] = 1.0
+    eye = sp.eye(N)
+    return sp.csr_matrix(sp.kron(sp.kron(path, eye), eye) + sp.kron(sp.kron(eye, path), eye)
+                         + sp.kron(sp.kron(eye, eye), path))
+
+
+def lowest_eigenvalues(count: int) -> np.ndarray:
+    """The Dirichlet grid Laplacian's eigenvalues sum_d 2 - 2 cos(pi k_d / (N + 1)), lowest."""
+    one = 2 - 2 * np.cos(np.pi * np.arange(1, N + 1) / (N + 1))
+    return np.sort((one[:, None, None] + one[None, :, None] + one[None, None, :]).ravel())[:count]
+
+
+def check_solves(factor: Factorization, matrix: sp.spmatrix) -> None:
+    rhs = np.random.default_rng(1).standard_normal((matrix.shape[0], 3))
+    reference = sla.spsolve(sp.csc_matrix(matrix), rhs)
+    scale = np.abs(reference).max()
+    np.testing.assert_allclose(factor.solve(rhs), reference, atol=1e-9 * scale)
+    np.testing.assert_allclose(factor.solve(rhs[:, 1]), reference[:, 1], atol=1e-9 * scale)
+    assert factor.solve(rhs[:, :0]).shape == (matrix.shape[0], 0)
+
+
+def test_positive_definite_matrices_use_cholesky():
+    matrix = grid_laplacian()
+    factor = Factorization(matrix)
+    assert factor.method == "cholesky"
+    check_solves(factor, matrix)
+
+
+def test_a_few_negative_modes_are_anchored_and_solved_exactly():
+    """Shifted just past its lowest eigenvalue, the Laplacian has one negative eigenvalue,
+    tiny next to its diagonal (6), like the Diamond's two under gravity (1e-6 of it)."""
+    first, second = lowest_eigenvalues(2)
+    matrix = grid_laplacian() - sp.eye(N**3) * (first + 1e-4)
+    factor = Factorization(matrix)
+    assert factor.method == "anchored"
+    check_solves(factor, matrix)
+    # refactor with the same pattern keeps the anchors and solves the new matrix
+    shifted = grid_laplacian() - sp.eye(N**3) * (first + 0.3 * (second - first))
+    factor.refactor(shifted)
+    assert factor.method == "anchored"
+    check_solves(factor, shifted)
+
+
+def test_strongly_indefinite_matrices_fall_back_to_ldl():
+    matrix = grid_laplacian() - 5.5 * sp.eye(N**3)  # half the spectrum negative
+    factor = Factorization(matrix)
+    assert factor.method == "ldl"
+    check_solves(factor, matrix)
+
+
+def test_a_new_pattern_is_analysed_again():
+    matrix = grid_laplacian()
+    factor = Factorization(matrix)
+    coupled = sp.csr_matrix(matrix + 0.1 * sp.eye(N**3, k=5) + 0.1 * sp.eye(N**3, k=-5))
+    factor.refactor(coupled)
+    check_solves(factor, coupled)
+
+
+def test_singular_matrices_raise_a_solver_error():
+    """A Neumann Laplacian (constants in its kernel) is an unclamped body's stiffness."""
+    with pytest.raises(SolverError, match="singular: is the robot clamped"):
+        factor = Factorization(grid_laplacian(clamped=False))
+        factor.solve(np.ones(N**3) + np.arange(N**3))

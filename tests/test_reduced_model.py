@@ -1,0 +1,267 @@
+"""The reduced-order model (POD + ECSW) against its full quadratic model, on a small robot.
+
+A clamped P2 beam with two cables trains in seconds; every check is on load cases outside
+its training set (other actuations, forces between feature points, two contacts). The coarse
+Diamond figures are the bench study (benchmarks/bench_reduced.py, docs/reduced_model.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+import warnings
+
+import meshio
+import numpy as np
+import pytest
+from scipy.optimize import nnls
+
+from softforce_cli.calibration.linear_model import linear_model
+from softforce_cli.errors import ModelError
+from softforce_cli.fem.attachment import Attachment
+from softforce_cli.fem.reduction.accuracy import LoadCase, between_features, case_errors
+from softforce_cli.fem.reduction.ecsw import sparse_nnls
+from softforce_cli.fem.reduction.pod import pod_basis, projection_errors
+from softforce_cli.fem.reduction.reduced_model import ReducedModel, ReducedModelWarning
+from softforce_cli.fem.reduction.rom_file import load_reduction, reduced_model, save_reduction
+from softforce_cli.fem.reduction.train import TrainingSettings, train_robot
+from softforce_cli.fem.statics import solve_equilibrium
+from softforce_cli.model.robot import load_robot
+from softforce_cli.model.structured import box_mesh
+from tests.cli_runner import assert_one_line_error, softforce
+
+BEAM_TOML = """name = "beam"
+[mesh]
+path = "beam.vtu"
+element = "p2"
+{reduced}
+[material]
+law = "corotational"
+young_modulus_mpa = 0.5
+poisson_ratio = {poisson}
+total_mass_kg = 0.02
+gravity_mm_s2 = [0.0, 0.0, -9810.0]
+[[fixed]]
+box_mm = [-1.0, -10.0, -10.0, 1.0, 10.0, 10.0]
+[[cable]]
+name = "up"
+path_mm = [[78.0, 0.0, 6.0], [40.0, 0.0, 6.0]]
+pull_point_mm = [-5.0, 0.0, 6.0]
+min = 0.0
+max = 6.0
+[[cable]]
+name = "side"
+path_mm = [[78.0, 6.0, 0.0]]
+pull_point_mm = [-5.0, 6.0, 0.0]
+min = 0.0
+max = 4.0
+[features]
+count = 12
+[[marker]]
+id = "tip"
+position_mm = [80.0, 0.0, 8.0]
+[[marker]]
+id = "mid"
+position_mm = [40.0, 8.0, 0.0]
+[[marker]]
+id = "side"
+position_mm = [60.0, -8.0, 0.0]
+"""
+MAX_FORCE_N = 0.1
+SETTINGS = TrainingSettings(max_force_n=MAX_FORCE_N, validations=1)
+
+
+def write_beam(directory, divisions=(10, 2, 2), poisson=0.45, reduced=""):
+    """A 80 x 16 x 16 mm P2 beam robot clamped at x = 0; returns its TOML path."""
+    directory.mkdir(parents=True, exist_ok=True)
+    nodes, tets = box_mesh((80.0, 16.0, 16.0), divisions, (0.0, -8.0, -8.0))
+    meshio.write(directory / "beam.vtu", meshio.Mesh(nodes, [("tetra", tets)]))
+    path = directory / "beam.toml"
+    path.write_text(BEAM_TOML.format(poisson=poisson,
+                                     reduced=f'reduced = "{reduced}"' if reduced else ""))
+    return path
+
+
+@pytest.fixture(scope="module")
+def beam(tmp_path_factory):
+    """(robot, its reduction, the snapshot cache), trained once for the module."""
+    directory = tmp_path_factory.mktemp("beam")
+    robot = load_robot(write_beam(directory))
+    cache = directory / "snapshots.npz"
+    reduction = train_robot(robot, SETTINGS, cache=cache)
+    return robot, reduction, cache
+
+
+def cases(robot):
+    """Untrained loads: an interior actuation; one force between features; two contacts."""
+    points, normals = between_features(robot.mesh.nodes_mm, robot.mesh.surface_faces,
+                                       robot.feature_nodes, robot.fixed_nodes, 3)
+    inputs = robot.cable_inputs
+    return [
+        LoadCase(inputs(np.array([2.3, 1.7])), points[:0], np.zeros((0, 3))),
+        LoadCase(inputs(np.array([4.9, 0.6])), points[:1], -0.8 * MAX_FORCE_N * normals[:1]),
+        LoadCase(inputs(np.array([1.1, 3.2])), points[1:], -0.5 * MAX_FORCE_N * normals[1:]),
+    ]
+
+
+def test_training_is_small_and_validated(beam):
+    robot, reduction, _ = beam
+    info = reduction.info
+    assert 5 <= info["modes"] <= 120
+    assert info["sampled_elements"] < len(robot.full_fe_model.tets)
+    assert info["ecsw_residual"] <= SETTINGS.ecsw_tolerance
+    assert reduction.box.rms_error_mm < 0.5
+    # clamped dofs stay clamped
+    fixed = (3 * robot.full_fe_model.fixed_nodes[:, None] + np.arange(3)).ravel()
+    assert np.abs(reduction.basis[fixed]).max() == 0.0
+
+
+@pytest.mark.parametrize("index", [0, 1, 2])
+def test_reduced_matches_full_on_untrained_loads(beam, index):
+    robot, reduction, _ = beam
+    full = robot.full_fe_model
+    case = cases(robot)[index]
+    errors = case_errors(full, ReducedModel(full, reduction), case, robot.mesh.surface_nodes,
+                         robot.feature_nodes, robot.feature_normals)
+    assert errors.displacement_mm > 1.0  # the case really deforms the beam
+    assert errors.rms_mm <= 0.5
+    for name, value in errors.W_relative.items():
+        assert value <= 0.05, (name, value)
+    # equilibrium: the supports hold the same load, the cables pull the same
+    assert errors.reaction_n <= 0.02 * (0.02 * 9.81 + MAX_FORCE_N)
+    assert errors.tension_n <= 0.05 * 0.2
+
+
+def test_robot_file_key_gives_the_reduced_model_everywhere(beam, tmp_path):
+    robot, reduction, _ = beam
+    (tmp_path / "models").mkdir()
+    save_reduction(tmp_path / "models" / "beam.rom.npz", reduction)
+    reduced_robot = load_robot(write_beam(tmp_path, reduced="models/beam.rom.npz"))
+    model = reduced_robot.fe_model
+    assert isinstance(model, ReducedModel)
+    assert reduced_robot.config.mesh.reduced == (tmp_path / "models" / "beam.rom.npz")
+    assert model.node_count == robot.full_fe_model.node_count
+    inputs = robot.cable_inputs(np.array([3.0, 2.0]))
+    full = solve_equilibrium(robot.full_fe_model, inputs)
+    approx = solve_equilibrium(model, inputs)
+    assert approx.positions_mm.shape == full.positions_mm.shape
+    # calibration's linear model, through the same seam
+    rows = reduced_robot.marker_points.cartesian_rows(model.node_count)
+    lm_full = linear_model(robot.full_fe_model, full.positions_mm, full.cable_tensions_n, rows)
+    lm_red = linear_model(model, approx.positions_mm, approx.cable_tensions_n, rows)
+    np.testing.assert_allclose(lm_red.markers(approx.cable_tensions_n),
+                               lm_full.markers(full.cable_tensions_n), atol=0.3)
+    assert np.linalg.norm(lm_red.W_ea - lm_full.W_ea) <= 0.05 * np.linalg.norm(lm_full.W_ea)
+    # a warm start from the solution converges at once
+    again = solve_equilibrium(model, inputs, start_mm=approx.positions_mm)
+    assert again.iterations <= 2
+
+
+def test_mismatched_reduced_model_is_rejected(beam, tmp_path):
+    _, reduction, _ = beam
+    other_mesh = load_robot(write_beam(tmp_path / "mesh", divisions=(12, 2, 2)))
+    with pytest.raises(ModelError, match="trained for another model \\(mesh"):
+        reduced_model(other_mesh.full_fe_model, reduction, "beam.rom.npz")
+    other_material = load_robot(write_beam(tmp_path / "nu", poisson=0.3))
+    with pytest.raises(ModelError, match="material differ"):
+        reduced_model(other_material.full_fe_model, reduction, "beam.rom.npz")
+
+
+def test_reduced_model_holds_for_another_young_modulus(beam):
+    """Forces are linear in E at a fixed Poisson's ratio, so the file is reused: a doubled E
+    halves the sag under gravity in both models alike."""
+    robot, reduction, _ = beam
+    full = robot.full_fe_model
+    stiffer = dataclasses.replace(full, material=dataclasses.replace(
+        full.material, young_modulus_mpa=2 * full.material.young_modulus_mpa))
+    inputs = robot.cable_inputs(np.zeros(2))
+    exact = solve_equilibrium(stiffer, inputs).positions_mm
+    approx = solve_equilibrium(reduced_model(stiffer, reduction), inputs).positions_mm
+    sag = np.abs(exact - full.rest_nodes_mm).max()
+    assert sag > 0.5
+    assert np.abs(exact - approx).max() < 0.05 * sag
+
+
+def test_loads_outside_the_training_box_warn(beam):
+    robot, reduction, _ = beam
+    model = ReducedModel(robot.full_fe_model, reduction)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        solve_equilibrium(model, robot.cable_inputs(np.array([5.5, 3.0])))  # inside: silent
+    with pytest.warns(ReducedModelWarning, match="cable 'up' at 12 is outside the trained"):
+        solve_equilibrium(model, robot.cable_inputs(np.array([12.0, 0.0])))
+
+
+def test_corrupt_or_missing_file_is_a_model_error(tmp_path):
+    with pytest.raises(ModelError, match="not found"):
+        load_reduction(tmp_path / "none.rom.npz")
+    (tmp_path / "bad.rom.npz").write_bytes(b"not a zip")
+    with pytest.raises(ModelError, match="not a softforce reduced model"):
+        load_reduction(tmp_path / "bad.rom.npz")
+
+
+def test_early_stopped_nnls_is_scipys_at_zero_tolerance_and_sparse_otherwise():
+    rng = np.random.default_rng(3)
+    C = rng.uniform(0.0, 1.0, (60, 200))
+    truth = np.zeros(200)
+    truth[rng.choice(200, 15, replace=False)] = rng.uniform(0.5, 2.0, 15)
+    b = C @ truth + rng.normal(0, 1e-3, 60)
+    exact = sparse_nnls(C, b, tolerance=0.0)
+    reference, _ = nnls(C, b)
+    dense = np.zeros(200)
+    dense[exact.elements] = exact.weights
+    np.testing.assert_allclose(dense, reference, atol=1e-6)
+    early = sparse_nnls(C, b, tolerance=1e-2)
+    assert early.relative_residual <= 1e-2
+    assert len(early.elements) < np.count_nonzero(reference)
+    assert np.all(early.weights > 0)
+
+
+def test_pod_recovers_a_known_subspace():
+    rng = np.random.default_rng(4)
+    subspace = np.linalg.qr(rng.normal(size=(300, 4)))[0]
+    snapshots = subspace @ rng.normal(size=(4, 40)) + 1e-9 * rng.normal(size=(300, 40))
+    basis, singular = pod_basis(snapshots, tolerance=1e-8)
+    assert basis.shape == (300, 4)
+    np.testing.assert_allclose(basis.T @ basis, np.eye(4), atol=1e-12)
+    assert projection_errors(basis, snapshots).max() < 1e-7
+    assert singular[4] < 1e-6 * singular[0]
+
+
+def test_cli_reduce_resumes_from_snapshots_and_writes_a_usable_file(beam, tmp_path):
+    _, trained, cache = beam
+    toml = write_beam(tmp_path)
+    output = tmp_path / "beam.rom.npz"
+    # a training stopped after its snapshots: the command picks them up
+    resumed = tmp_path / "beam.rom.npz.snapshots.npz"
+    shutil.copy(cache, resumed)
+    result = softforce("model", "reduce", toml, "-o", output, "--max-force", "0.1", "--json")
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["modes"] == trained.mode_count
+    assert not resumed.exists()  # deleted without --keep-snapshots
+    reduction = load_reduction(output)
+    np.testing.assert_allclose(np.abs(reduction.basis), np.abs(trained.basis), atol=1e-8)
+    robot = load_robot(toml)
+    assert isinstance(reduced_model(robot.full_fe_model, reduction), ReducedModel)
+    again = softforce("model", "reduce", toml, "-o", output)
+    assert_one_line_error(again, "already exists")
+    bad = softforce("model", "reduce", toml, "-o", tmp_path / "x.rom.npz", "--element", "q9")
+    assert_one_line_error(bad, "--element 'q9' unknown")
+
+
+def test_feature_responses_span_the_compliance_columns(beam):
+    """W at rest from the reduced model equals the full one on the trained feature rows."""
+    robot, reduction, _ = beam
+    full = robot.full_fe_model
+    model = ReducedModel(full, reduction)
+    features = Attachment.at_nodes(robot.feature_nodes)
+    rows = features.directional_rows(robot.feature_normals, full.node_count)
+    from softforce_cli.fem.compliance import compliance, linearize
+
+    W = []
+    for m in (full, model):
+        eq = solve_equilibrium(m, robot.cable_inputs(np.zeros(2)))
+        W.append(compliance(linearize(m, eq.positions_mm, eq.cable_tensions_n), rows,
+                            rows[:3]).W_ef)
+    assert np.linalg.norm(W[1] - W[0]) <= 0.02 * np.linalg.norm(W[0])
