@@ -1,0 +1,69 @@
+"""`softforce calibrate --material`: Young's modulus from a known weight, then used by sense."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from tests.cli_runner import assert_one_line_error, softforce
+from tests.conftest import ROOT, SAMPLE_ROBOT
+from tests.test_sense_cli import pose_calibration
+
+WEIGHTS = ROOT / "sample_data" / "recordings" / "weights.mcap"
+# frame 0 unloaded, frame 3 holds 0.66 N below the apex (sample_data/scenarios/weights.toml)
+LOAD = ["--load-point", "0,0,110", "--load-n", "0,0,-0.66"]
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("material")
+    pose = pose_calibration(WEIGHTS.with_suffix("").with_suffix(".truth.json"), folder)
+    out = folder / "material.json"
+    result = softforce("calibrate", "--material", "--robot", SAMPLE_ROBOT, "--calibration", pose,
+                       "--recording", WEIGHTS, "--frames", "3:4", "--reference-frames", "0:1",
+                       *LOAD, "-o", out, "--json")
+    return result, out, folder
+
+
+def test_fit_makes_the_sensed_weight_the_known_one(fitted):
+    result, out, _ = fitted
+    assert result.returncode == 0, result.stderr
+    material = json.loads(result.stdout)
+    assert material == json.loads(out.read_text())["material"]
+    # the coarse linear tetrahedra lock: stiffer than the (finer) truth body, so the fitted,
+    # effective modulus is below the material's 0.18 MPa
+    assert 0.08 < material["young_modulus_mpa"] < 0.18
+    assert material["nominal_estimate_n"] > 0.66
+    assert material["estimates_n"][0] == pytest.approx(0.66, rel=0.03)
+    assert material["young_modulus_ci95_mpa"] is None  # one loaded frame: no interval
+    assert material["element"] == "p1" and "tared" in material["method"]
+
+
+def test_sense_uses_the_fitted_modulus(fitted):
+    _, out, folder = fitted
+    material = json.loads(out.read_text())["material"]
+    result = softforce("sense", WEIGHTS, "--robot", SAMPLE_ROBOT, "--calibration", out,
+                       "-o", folder / "sense", "--contact-point", "0,0,110", "--direction",
+                       "0,0,-1", "--tare", "1", "--updates", "6")
+    assert result.returncode == 0, result.stderr
+    document = json.loads((folder / "sense" / "sense.json").read_text())
+    assert document["robot"]["young_modulus_mpa"] == material["young_modulus_mpa"]
+    forces = {f["frame"]: f["contacts"][0]["force_n"] for f in document["frames"]
+              if f["contacts"]}
+    assert forces[3] == pytest.approx(0.66, rel=0.03)
+    # heavier weights read heavier, within the noise of single 424x240 frames (see
+    # docs/sensing.md): 0.26 and 1.06 N far apart
+    assert forces[1] < 0.45 < forces[6]
+
+
+@pytest.mark.parametrize(("drop", "fragment"), [("--load-n", "--load-n"),
+                                                ("--calibration", "--calibration")])
+def test_material_needs_its_inputs(fitted, tmp_path, drop, fragment):
+    _, _, folder = fitted
+    args = {"--calibration": str(folder / "pose.json"), "--recording": str(WEIGHTS),
+            "--load-point": "0,0,110", "--load-n": "0,0,-0.66"}
+    del args[drop]
+    result = softforce("calibrate", "--material", "--robot", SAMPLE_ROBOT, "-o",
+                       tmp_path / "m.json", *[x for pair in args.items() for x in pair])
+    assert_one_line_error(result, fragment)
