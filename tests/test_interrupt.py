@@ -162,6 +162,7 @@ def test_a_signal_while_finishing_waits_for_the_finished_file(tmp_path):
     renamed, then raised; the recording keeps every frame (without the hold, it was deleted)."""
     import os
 
+    from softforce_cli.cli import interrupt
     from softforce_cli.cli.interrupt import Terminated, install_signal_handlers
     from softforce_cli.io.mcap_writer import RecordingWriter
     from tests.test_mcap import make_frames
@@ -187,4 +188,5 @@ def test_a_signal_while_finishing_waits_for_the_finished_file(tmp_path):
     finally:
         for sig, handler in saved.items():
             signal.signal(sig, handler)
+        interrupt._received.clear()  # the SIGTERM sent here must not colour later tests
     assert len(read_clean(path)) == 3

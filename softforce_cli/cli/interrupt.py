@@ -31,6 +31,7 @@ def install_signal_handlers() -> None:
     """SIGTERM raises Terminated; SIGINT keeps Python's KeyboardInterrupt. Both are recorded."""
     if threading.current_thread() is not threading.main_thread():
         return  # signal handlers can only be set from the main thread
+    _received.clear()  # a new run: what stopped an earlier one in this process is history
     signal.signal(signal.SIGINT, _raise_interrupt)
     signal.signal(signal.SIGTERM, _raise_interrupt)
 
