@@ -101,6 +101,8 @@ class ForceSensor:
         start = solve_equilibrium(self.model, robot.cable_inputs(self.actuation))
         self.positions = start.positions_mm
         self.tensions = start.cable_tensions_n
+        self._normals_at: np.ndarray | None = None
+        self._normals = np.zeros((0, 3))
         self.factorization = None
         self.tracker = ContactTracker(settings.estimation.track_radius_mm)
         # taring: the first tare_frames processed frames are taken as free of external force,
@@ -116,12 +118,19 @@ class ForceSensor:
             point = np.asarray(known_contact.rest_point_mm, dtype=float)[None]
             self.known_points = robot.attach(point)
 
+    def node_normals(self) -> np.ndarray:
+        """(n, 3) outward unit normals of the mesh's nodes at the configuration, computed once
+        per configuration (matching, force columns and reports all need them)."""
+        if self._normals_at is not self.positions:
+            mesh = self.robot.mesh
+            self._normals = vertex_normals(self.positions[: mesh.node_count], mesh.surface_faces)
+            self._normals_at = self.positions
+        return self._normals
+
     def feature_geometry(self) -> tuple[np.ndarray, np.ndarray]:
         """Feature positions (p, 3) mm and outward unit normals (p, 3) at the configuration."""
-        mesh = self.robot.mesh
-        nodes = self.positions[: mesh.node_count]
-        normals = vertex_normals(nodes, mesh.surface_faces)[self.robot.feature_nodes]
-        return nodes[self.robot.feature_nodes], normals
+        features = self.robot.feature_nodes
+        return self.positions[features], self.node_normals()[features]
 
     def process(self, index: int, frame: RgbdFrame) -> FrameEstimate:
         """Estimate the contacts of one frame and move the FE configuration to it."""
@@ -236,10 +245,8 @@ class ForceSensor:
             points = Attachment.at_nodes(np.repeat(contact_nodes, 3))
             groups = tuple(np.arange(3 * i, 3 * i + 3) for i in range(c))
             return _Columns(points, np.tile(AXES, (c, 1)), np.zeros(3 * c, bool), groups)
-        mesh = self.robot.mesh
-        normals = vertex_normals(self.positions[: mesh.node_count], mesh.surface_faces)
         groups = tuple(np.array([i]) for i in range(c))
-        return _Columns(Attachment.at_nodes(contact_nodes), -normals[contact_nodes],
+        return _Columns(Attachment.at_nodes(contact_nodes), -self.node_normals()[contact_nodes],
                         np.ones(c, bool), groups)
 
     def update(self, matches: FeatureMatches, contact_nodes: np.ndarray,
