@@ -234,7 +234,7 @@ def write_report(results: dict[str, list[dict]], rates: dict[str, tuple], docs: 
         title = {"default": "softforce's default Diamond (procedural, gmsh sizes in mm)",
                  "sofa": "SOFA's Diamond meshes (4k and 34k tetrahedra)"}[name]
         sections += [f"### {title}", "", *table(rows), ""]
-    speed = ["| element | tets | update | rate | K assembly | LDL^T (qdldl) | free dofs |",
+    speed = ["| element | tets | update | rate | K assembly | factorisation | free dofs |",
              "|---|---|---|---|---|---|---|"]
     for element, (update_s, assemble_s, factor_s, robot) in rates.items():
         speed.append(f"| {element} | {robot.mesh.tet_count} | {update_s * 1e3:.0f} ms | "
@@ -311,18 +311,22 @@ text interprets the run recorded in the project's history.
   tets, tip load, ratio to Timoshenko): P1 0.236, P2 0.944, P2-P0 0.998; the mesh-converged
   3D value is 0.983 (the clamped face cannot contract sideways). P2 on 20 x 2 x 2 cubic
   cells: 0.969.
-- **Speed** (below): one FE update with P2 or P2-P0 on the coarse robot costs about 20 times
-  P1's (1.3-1.5 Hz instead of 26-31 Hz on this shared 2-core machine), three quarters of it
-  the LDL^T factorisation of 26k dofs by qdldl (a non-supernodal LDL^T). **`p1` stays the
+- **Speed** (below): one FE update with P2 or P2-P0 on the coarse robot cost about 20 times
+  P1's with the first solver (1.3-1.5 Hz instead of 26-31 Hz on this shared 2-core
+  machine), three quarters of it the LDL^T factorisation of 26k dofs by qdldl (a
+  non-supernodal LDL^T). The factorisation is now CHOLMOD's supernodal Cholesky (through
+  cvxopt; docs/fem.md), made exact for the Diamond's slightly indefinite tangent under
+  gravity by springs at a few anchor dofs and a Woodbury correction: 5.9x (P2) and 7.6x
+  (P2-P0) faster than qdldl on the coarse P2 stiffness, which makes the whole P2 update
+  4.3x faster (2.0 s -> 0.47 s of CPU on a heavily loaded machine, where qdldl's update
+  took 3x its wall time of the table below: about 6 Hz on a quiet one, an estimate). K's
+  assembly (150-180 ms of CPU there, 80-100 ms wall) is now the largest part, with the
+  corotational law's tangent at 18k quadrature points half of it. **`p1` stays the
   default** for the real-time sensing loop; choose `p2` (or `p2-p0` on meshes with a few
   elements across every bar) where accuracy matters more than the frame rate: offline
-  calibration and diagnosis fits, synthetic ground truth. P2-P0 on the 12 mm
-  mesh (2.4k tets) is still within 1 mm RMS of the P2-P0 reference (0.64-0.98) at
-  2.9-3.5 Hz, far from 50 Hz. A supernodal Cholesky helps but does not close the gap:
-  CHOLMOD (measured through cvxopt 1.3.3's bundled SuiteSparse, not a project dependency)
-  factorises the coarse P2-P0 stiffness in 90 ms instead of qdldl's 541 ms (P1: 5 ms
-  instead of 14 ms; 7 solves 48 ms), which would make a P2-P0 update about 4 Hz (an
-  estimate), with the 80-100 ms assembly of K then the largest cost.
+  calibration and diagnosis fits, synthetic ground truth (`softforce simulate`'s sample
+  truth is P2 on the 6.5 mm mesh, docs/scenarios.md). P2-P0 on the 12 mm mesh (2.4k tets)
+  is still within 1 mm RMS of the P2-P0 reference (0.64-0.98) at 2.9-3.5 Hz with qdldl.
 - **Stability under gravity**: with a locking-free element the default Diamond, held by
   its cables at 0 mm under its own weight, has an indefinite tangent (W_aa of eq. 4 has two
   negative eigenvalues, the apex tipping sideways; measured with p2-p0 on the coarse mesh,
@@ -346,7 +350,7 @@ not clamped, |u_model - u_reference|, with u_reference the reference's displacem
 rest point (attached to the reference mesh with the reference's own shape functions). The
 tables give the RMS and the maximum over those nodes, and the apex sag under gravity.
 
-**Reference**: P2-P0 on the finest mesh that a few static solves with qdldl afford
+**Reference**: P2-P0 on the finest mesh that a few static solves afford
 (default robot: gmsh size 4.8 mm, the sample `diamond_fine` mesh, 18k tets, 92k free dofs;
 SOFA: its 34k-tet mesh, 164k free dofs; 10 to 45 minutes of solves per model). Plain P2 on
 the same mesh is solved too, and the summary also compares the coarse models with P2 and
@@ -363,9 +367,9 @@ extrapolation is claimed.
 
 ## Speed of one FE update on the default robot
 
-K(x), its LDL^T factorisation (qdldl) and the compliance matrices for 51 normal effectors,
-4 cables and 2 force points (benchmarks/bench_fem.py `update_timing`), medians of 5 on this
-machine (shared, 2 cores: compare ratios):
+K(x), its factorisation (fem/linear_solver.py: CHOLMOD) and the compliance matrices for 51
+normal effectors, 4 cables and 2 force points (benchmarks/bench_fem.py `update_timing`),
+medians of 5 on this machine (shared, 2 cores: compare ratios):
 
 {speed}
 """
