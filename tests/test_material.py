@@ -67,3 +67,27 @@ def test_material_needs_its_inputs(fitted, tmp_path, drop, fragment):
     result = softforce("calibrate", "--material", "--robot", SAMPLE_ROBOT, "-o",
                        tmp_path / "m.json", *[x for pair in args.items() for x in pair])
     assert_one_line_error(result, fragment)
+
+
+def test_a_jump_in_the_sensed_load_is_not_taken_for_a_root(monkeypatch):
+    """Brent's method on a sensed load that jumps past the known one at 0.25 MPa (a frame
+    that starts or stops matching) ends on the jump; the fit must refuse it."""
+    import numpy as np
+
+    from softforce_cli.calibration import material
+    from softforce_cli.errors import CalibrationError
+    from softforce_cli.model.robot import load_robot
+
+    def sensed(robot, *_):
+        modulus = robot.material.young_modulus_mpa
+        return np.array([0.5 * np.sqrt(modulus / 0.18) if modulus < 0.25 else 2.0]), 1.0
+
+    monkeypatch.setattr(material, "_sensed", sensed)
+    load = material.KnownLoad(np.array([0.0, 0.0, 110.0]), np.array([0.0, 0.0, -0.66]))
+    with pytest.raises(CalibrationError, match="jumps"):
+        material.fit_young_modulus(load_robot(SAMPLE_ROBOT), None, [], [], load, None)
+    # the same fit on a continuous response finds the proportional answer
+    monkeypatch.setattr(material, "_sensed", lambda robot, *_: (
+        np.array([0.5 * robot.material.young_modulus_mpa / 0.18]), 1.0))
+    fit = material.fit_young_modulus(load_robot(SAMPLE_ROBOT), None, [], [], load, None)
+    assert fit.young_modulus_mpa == pytest.approx(0.18 * 0.66 / 0.5, rel=5e-3)

@@ -40,6 +40,10 @@ from softforce_cli.model.robot import Robot, build_robot
 # bracketing the answer may take at most MAX_PASSES sensing passes.
 RELATIVE_TOLERANCE = 5e-3
 MAX_PASSES = 8
+# The fitted modulus must reproduce the known load to this fraction; otherwise the sensed load
+# is not a continuous function of E there (a frame flips from matched to unmatched, or the
+# contact column drops out) and Brent's method stopped on a jump, not on a root.
+MATCH_TOLERANCE = 0.05
 # FE updates per frame in the fit: enough to reach the static state of a frame from the
 # previous one (the updates converge like Newton's method: 2-3 from a nearby state).
 STATIC_UPDATES = 6
@@ -151,6 +155,12 @@ def fit_young_modulus(
     estimates, rms = evaluations.get(modulus) or _sensed(
         robot_with_material(robot, {"young_modulus_mpa": modulus}), robot_from_camera, loaded,
         reference, load, settings)
+    if abs(float(np.mean(estimates)) - magnitude) > MATCH_TOLERANCE * magnitude:
+        raise CalibrationError(
+            f"the sensed load jumps from below to above --load-n near {modulus:.4g} MPa "
+            f"({float(np.mean(estimates)):.3g} N there, not {magnitude:.3g} N): the loaded "
+            "frames are not sensed consistently; check the calibration pose, --load-point and "
+            "the frames (`softforce sense --contact-point` on them shows each frame's status)")
     nominal_estimate = float(np.mean(evaluations[nominal][0]))
     passes = len(evaluations)
     ci = None
