@@ -31,6 +31,7 @@ def _register_commands() -> None:
         calibrate_command,
         model_commands,
         record_commands,
+        report_command,
         sense_command,
         simulate_command,
     )
@@ -40,6 +41,7 @@ def _register_commands() -> None:
     app.command("simulate")(simulate_command.simulate)
     app.command("calibrate")(calibrate_command.calibrate)
     app.command("sense")(sense_command.sense)
+    app.command("report")(report_command.report)
 
 
 def _version(value: bool) -> None:

@@ -1,0 +1,69 @@
+"""The numbers a report opens with, computed from a sense run's tables."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from softforce_cli.estimation.results import SKIP_REASONS, STAGES
+from softforce_cli.report.loading import SenseRun
+
+# Frame statuses that are not failures: tare frames zero the sensor on purpose.
+STATUS_MEANINGS = {**SKIP_REASONS, "tare": "taken to zero the sensor (--tare): no contact "
+                   "is estimated on it"}
+
+
+@dataclass(frozen=True)
+class ContactSpan:
+    """A contact track: frames it appears in, force min/median/max (N), time span (s)."""
+
+    contact: int
+    frames: int
+    force_min_n: float
+    force_median_n: float
+    force_max_n: float
+    first_s: float
+    last_s: float
+
+
+@dataclass(frozen=True)
+class Overview:
+    """frames: processed; skipped: status -> count for statuses other than ok;
+    frames_per_s: the run's own rate (sense.json), else 1000 / mean total_ms;
+    stage_median_ms: stage -> median milliseconds over the frames."""
+
+    frames: int
+    ok: int
+    skipped: dict[str, int]
+    contacts: tuple[ContactSpan, ...]
+    frames_per_s: float
+    rate_measured: bool
+    stage_median_ms: dict[str, float]
+    duration_s: float
+
+
+def sense_overview(run: SenseRun) -> Overview:
+    frames, contacts = run.frames, run.contacts
+    statuses, counts = np.unique(frames["status"], return_counts=True)
+    skipped = {str(s): int(n) for s, n in zip(statuses, counts, strict=True) if s != "ok"}
+    spans = []
+    for index in np.unique(contacts["contact"]).astype(int):
+        rows = contacts["contact"] == index
+        force, time = contacts["force_n"][rows], contacts["time_s"][rows]
+        spans.append(ContactSpan(index, int(rows.sum()), float(force.min()),
+                                 float(np.median(force)), float(force.max()),
+                                 float(time.min()), float(time.max())))
+    rate = run.summary.get("frames_per_s")
+    measured = isinstance(rate, int | float) and rate > 0
+    if not measured:
+        total = frames["total_ms"][np.isfinite(frames["total_ms"])]
+        rate = 1e3 / total.mean() if len(total) and total.mean() > 0 else float("nan")
+    stages = {s: float(np.nanmedian(frames[f"{s}_ms"])) for s in STAGES
+              if f"{s}_ms" in frames.names and len(frames)}
+    times = frames["time_s"]
+    return Overview(
+        frames=len(frames), ok=int(run.ok.sum()), skipped=skipped, contacts=tuple(spans),
+        frames_per_s=float(rate), rate_measured=measured, stage_median_ms=stages,
+        duration_s=float(times.max() - times.min()) if len(times) else 0.0,
+    )
