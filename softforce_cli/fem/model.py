@@ -22,6 +22,7 @@ from softforce_cli.fem.element import (
     reference_gradients,
 )
 from softforce_cli.fem.materials import Material
+from softforce_cli.fem.supports import Support
 from softforce_cli.fem.tet_p1 import shape_gradients
 
 # Newtons per (kg * mm/s^2): forces are in N while lengths are in mm.
@@ -46,6 +47,12 @@ class FEModel:
     cables        : the cable actuators, in the robot file's order.
     element_name  : "p1", "p2" or "p2-p0" (fem.element.ELEMENTS), or None for the element of
                     the width of `tets` (p1 or p2).
+    element_stiffness_scale : (m,) float64 multiplier of each element's modulus (regional
+                    stiffness, model.effects), or None for the material's modulus everywhere.
+                    Every law is linear in its Lame parameters, so it scales the element's
+                    energy, stress and tangent exactly.
+    supports      : springs and contact planes (fem.supports) besides the clamped nodes; their
+                    forces count as internal forces, their stiffness as tangent.
     """
 
     rest_nodes_mm: np.ndarray
@@ -56,6 +63,8 @@ class FEModel:
     gravity_mm_s2: np.ndarray
     cables: tuple[Cable, ...] = ()
     element_name: str | None = None
+    element_stiffness_scale: np.ndarray | None = None
+    supports: tuple[Support, ...] = ()
 
     @property
     def node_count(self) -> int:
@@ -83,6 +92,14 @@ class FEModel:
     def quadrature_weights_mm3(self) -> np.ndarray:
         """(m, q) mm^3: element volume times the rule's weights."""
         return self._reference[1]
+
+    @cached_property
+    def law_weights_mm3(self) -> np.ndarray:
+        """(m, q) mm^3: the quadrature weights the constitutive terms are integrated with,
+        times element_stiffness_scale when given (the weights themselves otherwise)."""
+        if self.element_stiffness_scale is None:
+            return self.quadrature_weights_mm3
+        return self.quadrature_weights_mm3 * self.element_stiffness_scale[:, None]
 
     @cached_property
     def tet_volumes_mm3(self) -> np.ndarray:
@@ -154,9 +171,14 @@ class FEModel:
         """Elastic energy (mJ) and internal forces g(x) (n, 3) N, sharing one stress pass."""
         F = self.deformation_gradients(positions_mm)
         density, stress = self._constitutive(F, with_tangent=False)
-        weights = self.quadrature_weights_mm3
-        forces = element_forces(stress, self.shape_gradients, weights)
-        return float(density.ravel() @ weights.ravel()), self._nodal(forces)
+        weights = self.law_weights_mm3
+        forces = self._nodal(element_forces(stress, self.shape_gradients, weights))
+        energy = float(density.ravel() @ weights.ravel())
+        for support in self.supports:
+            support_energy, support_forces, _ = support.terms(positions_mm)
+            energy += support_energy
+            np.add.at(forces, support.nodes, support_forces)
+        return energy, forces
 
     def internal_forces_and_stiffness(
         self, positions_mm: np.ndarray
@@ -164,19 +186,35 @@ class FEModel:
         """g(x) (n, 3) N and the tangent stiffness dg/dx over the free dofs, CSR (f, f) N/mm."""
         F = self.deformation_gradients(positions_mm)
         stress, tangent = self._constitutive(F, with_tangent=True)
-        weights = self.quadrature_weights_mm3
-        forces = element_forces(stress, self.shape_gradients, weights)
-        stiffness = element_stiffness(tangent, self.shape_gradients, weights)
-        return self._nodal(forces), self.pattern.assemble(stiffness)
+        weights = self.law_weights_mm3
+        forces = self._nodal(element_forces(stress, self.shape_gradients, weights))
+        stiffness = self.pattern.assemble(element_stiffness(tangent, self.shape_gradients,
+                                                            weights))
+        if self.supports:
+            forces, stiffness = self._with_supports(positions_mm, forces, stiffness)
+        return forces, stiffness
+
+    def _with_supports(self, positions_mm: np.ndarray, forces: np.ndarray,
+                       stiffness: sp.csr_matrix) -> tuple[np.ndarray, sp.csr_matrix]:
+        """Forces (n, 3) and tangent (f, f) with the supports' terms added."""
+        forces = forces.copy()
+        diagonal = np.zeros(3 * self.node_count)
+        for support in self.supports:
+            _, support_forces, support_diagonal = support.terms(positions_mm)
+            np.add.at(forces, support.nodes, support_forces)
+            dofs = (3 * support.nodes[:, None] + np.arange(3)).ravel()
+            np.add.at(diagonal, dofs, support_diagonal.ravel())
+        return forces, stiffness + sp.diags(diagonal[self.free_dofs], format="csr")
 
     def element_terms(
         self, positions_mm: np.ndarray, which: np.ndarray, with_tangent: bool
     ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray | None]:
         """Per-element terms of elements `which` (s,) at positions (n, 3): energies (s,) mJ
         (None with_tangent), internal forces (s, 3k) N in element_dofs order and, with_tangent,
-        stiffness (s, 3k, 3k) N/mm (else None). Used by hyper-reduction (few elements)."""
+        stiffness (s, 3k, 3k) N/mm (else None). Used by hyper-reduction (few elements); the
+        supports are not element terms and are left out."""
         gradients = self.shape_gradients[which]
-        weights = self.quadrature_weights_mm3[which]
+        weights = self.law_weights_mm3[which]
         F = deformation_gradients(positions_mm, self.tets[which], gradients)
         if not with_tangent:
             density, stress = self._constitutive(F, with_tangent=False)

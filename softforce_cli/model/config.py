@@ -15,9 +15,11 @@ from softforce_cli.errors import ModelError
 from softforce_cli.fem.cables import CONTROLS
 from softforce_cli.fem.element import ELEMENTS
 from softforce_cli.fem.materials import LAWS
+from softforce_cli.model.effects import Effect, EffectError, parse_effects
+from softforce_cli.model.regions import region_names
 
 _KEYS = {
-    "top": {"name", "mesh", "material", "fixed", "cable", "features", "marker"},
+    "top": {"name", "mesh", "material", "fixed", "cable", "features", "marker", "effect"},
     "mesh": {"path", "scale", "rotation_deg", "translation_mm", "element", "reduced"},
     "material": {"law", "young_modulus_mpa", "poisson_ratio", "total_mass_kg", "density_kg_m3",
                  "gravity_mm_s2"},
@@ -78,6 +80,8 @@ class RobotConfig:
     feature_count: int | None
     feature_points_mm: tuple[tuple[float, float, float], ...] | None
     markers: tuple[MarkerSpec, ...]
+    # [[effect]] tables (model.effects; docs/effects.md), in file order
+    effects: tuple[Effect, ...] = ()
 
 
 def load_config(path: Path) -> RobotConfig:
@@ -139,18 +143,34 @@ def parse_config(data: dict[str, Any], source: Path) -> RobotConfig:
     if count is not None and (not isinstance(count, int) or count < 1):
         raise ModelError(f"{source}: features.count must be a positive integer, got {count!r}")
     points = features.get("points_mm")
+    cables = _cables(where.tables(data.get("cable", []), "cable"), where)
     return RobotConfig(
         source=source,
         name=str(data.get("name", source.stem)),
         mesh=mesh_spec,
         material=_material(data["material"], where),
         fixed_boxes_mm=tuple(boxes),
-        cables=_cables(where.tables(data.get("cable", []), "cable"), where),
+        cables=cables,
         feature_count=count,
         feature_points_mm=None if points is None else tuple(
             where.vector(p, f"features.points_mm[{i}]") for i, p in enumerate(points)),
         markers=_markers(where.tables(data.get("marker", []), "marker"), where),
+        effects=_effects(where.tables(data.get("effect", []), "effect"), cables, where),
     )
+
+
+def _effects(tables: list, cables: tuple[CableSpec, ...], where: _Where) -> tuple[Effect, ...]:
+    names = tuple(c.name for c in cables)
+    try:
+        effects = parse_effects(tables, names, region_names(names))
+    except EffectError as error:
+        raise ModelError(f"{where.source}: {error}") from error
+    controls = {c.name: c.control for c in cables}
+    for effect in effects:
+        if effect.spec.target == "cable" and controls[effect.target] != "displacement":
+            raise ModelError(f"{where.source}: {effect.name} acts on a cable's displacement; "
+                             f"cable {effect.target!r} is force-controlled")
+    return effects
 
 
 def _reduced_path(value: Any, source: Path) -> Path | None:

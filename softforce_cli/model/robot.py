@@ -6,6 +6,10 @@ reduced-order model of `[mesh] reduced` (with the element it was trained on). Wi
 elements the FE model has more nodes than the mesh: the mesh's n nodes first, in their order,
 then one per edge (`Robot.fe_mesh`), so positions[:n] of any FE configuration are the mesh's
 nodes.
+
+A robot file's `[[effect]]` tables (model.effects) enter here: the physics effects into
+`full_fe_model` (creep, which needs frame times, excepted), cable slack into `cable_inputs`;
+`nominal_fe_model` is the model without them.
 """
 
 from __future__ import annotations
@@ -26,6 +30,8 @@ from softforce_cli.fem.model import FEModel, lumped_masses
 from softforce_cli.fem.reduction.reduced_model import ReducedModel, Reduction
 from softforce_cli.fem.reduction.rom_file import load_reduction, reduced_model
 from softforce_cli.model.config import CableSpec, RobotConfig, load_config
+from softforce_cli.model.effect_physics import fe_model_with_effects, reducible
+from softforce_cli.model.effects import Effect, effects_of_kind, slack_actuation
 from softforce_cli.model.features import nearest_surface_nodes, spread_surface_nodes
 from softforce_cli.model.mesh import TetMesh
 from softforce_cli.model.mesh_io import read_tet_mesh
@@ -60,6 +66,11 @@ class Robot:
     @property
     def cable_specs(self) -> tuple[CableSpec, ...]:
         return self.config.cables
+
+    @property
+    def effects(self) -> tuple[Effect, ...]:
+        """The robot file's [[effect]] tables (model.effects)."""
+        return self.config.effects
 
     @cached_property
     def material(self) -> Material:
@@ -120,14 +131,23 @@ class Robot:
     @cached_property
     def fe_model(self) -> FEModel | ReducedModel:
         """The model commands use: the reduced one when `[mesh] reduced` is set (ModelError
-        when it was trained for another mesh or material), else the full one."""
-        if self.reduction is None:
+        when it was trained for another mesh or material) and represents the file's effects
+        (model.effect_physics.reducible), else the full one."""
+        if self.reduction is None or not reducible(self.effects):
             return self.full_fe_model
         return reduced_model(self.full_fe_model, self.reduction, self.config.mesh.reduced)
 
     @cached_property
     def full_fe_model(self) -> FEModel:
-        """The full FE model of `element_name` (what a reduced model is trained on)."""
+        """The full FE model of `element_name` with the file's physics effects (what a
+        reduced model is trained on); the nominal model when it has none."""
+        if not effects_of_kind(self.effects, "physics"):
+            return self.nominal_fe_model
+        return fe_model_with_effects(self, self.effects)
+
+    @cached_property
+    def nominal_fe_model(self) -> FEModel:
+        """The full FE model of `element_name`, without the file's effects."""
         fe_mesh = self.fe_mesh
         return FEModel(
             rest_nodes_mm=fe_mesh.nodes_mm,
@@ -153,11 +173,14 @@ class Robot:
         return self.marker_points.positions(self.rest_nodes_mm)
 
     def cable_inputs(self, values: np.ndarray) -> CableInputs:
-        """Actuation values (a,) with each cable's control mode from the robot file."""
+        """Actuation values (a,) with each cable's control mode from the robot file, after
+        the file's cable_slack effects (u - slack, not below 0)."""
         values = np.asarray(values, dtype=float)
         if values.shape != (len(self.cable_specs),):
             raise ModelError(f"{len(values)} actuation values for {len(self.cable_specs)} cables "
                              f"({', '.join(c.name for c in self.cable_specs)})")
+        if self.effects:
+            values = slack_actuation(self.effects, values, [c.name for c in self.cable_specs])
         return CableInputs(tuple(c.control for c in self.cable_specs), values)
 
 
@@ -167,6 +190,13 @@ def with_element(robot: Robot, element: str) -> Robot:
     mesh = dataclasses.replace(robot.config.mesh, element=element, reduced=None)
     return Robot(dataclasses.replace(robot.config, mesh=mesh), robot.mesh, robot.fixed_nodes,
                  robot.feature_nodes, robot.marker_ids)
+
+
+def robot_with_effects(robot: Robot, effects: tuple[Effect, ...]) -> Robot:
+    """The same robot with its [[effect]] list replaced by `effects` (what robot.fitted.toml
+    holds): its full_fe_model has their physics, its cable_inputs their slack."""
+    config = dataclasses.replace(robot.config, effects=tuple(effects))
+    return Robot(config, robot.mesh, robot.fixed_nodes, robot.feature_nodes, robot.marker_ids)
 
 
 def load_robot(path: Path) -> Robot:
