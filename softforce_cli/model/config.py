@@ -16,7 +16,7 @@ from softforce_cli.fem.cables import CONTROLS
 from softforce_cli.fem.element import ELEMENTS
 from softforce_cli.fem.materials import LAWS
 from softforce_cli.model.effects import Effect, EffectError, parse_effects
-from softforce_cli.model.regions import region_names
+from softforce_cli.model.regions import names_for_cables
 
 _KEYS = {
     "top": {"name", "mesh", "material", "fixed", "cable", "features", "marker", "effect"},
@@ -162,7 +162,7 @@ def parse_config(data: dict[str, Any], source: Path) -> RobotConfig:
 def _effects(tables: list, cables: tuple[CableSpec, ...], where: _Where) -> tuple[Effect, ...]:
     names = tuple(c.name for c in cables)
     try:
-        effects = parse_effects(tables, names, region_names(names))
+        effects = parse_effects(tables, names, names_for_cables(names))
     except EffectError as error:
         raise ModelError(f"{where.source}: {error}") from error
     controls = {c.name: c.control for c in cables}

@@ -33,14 +33,18 @@ BASE_MARGIN_FRACTION = 0.08
 APEX_FRACTION = 0.15
 
 
-def region_names(cable_names: tuple[str, ...]) -> tuple[str, ...]:
-    """The region names of a robot with these cables: `base`, `apex`, then the cables'
-    names (or `body` without cables)."""
+def region_names(robot: Robot) -> tuple[str, ...]:
+    """The robot's region names: `base`, `apex`, then its cables' names (or `body`)."""
+    return names_for_cables(tuple(spec.name for spec in robot.cable_specs))
+
+
+def names_for_cables(cable_names: tuple[str, ...]) -> tuple[str, ...]:
+    """The region names of a robot with these cables (what region_names gives)."""
     return (BASE, APEX, *(tuple(cable_names) or (BODY,)))
 
 
 def region_labels(robot: Robot, points_mm: np.ndarray) -> np.ndarray:
-    """(p,) int64 index into region_names(cables) of each rest-shape point (p, 3) mm."""
+    """(p,) int64 index into region_names(robot) of each rest-shape point (p, 3) mm."""
     points = np.asarray(points_mm, dtype=float).reshape(-1, 3)
     nodes = robot.mesh.nodes_mm
     height = float(np.ptp(nodes[:, 2]))
@@ -73,8 +77,7 @@ def node_regions(robot: Robot) -> dict[str, np.ndarray]:
 
 
 def _masks(robot: Robot, labels: np.ndarray) -> dict[str, np.ndarray]:
-    names = region_names(tuple(spec.name for spec in robot.cable_specs))
-    return {name: labels == i for i, name in enumerate(names)}
+    return {name: labels == i for i, name in enumerate(region_names(robot))}
 
 
 def _polyline_distance(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
