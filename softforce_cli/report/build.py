@@ -144,7 +144,7 @@ def _sense_sections(run: SenseRun, overview: Overview, truth: TruthReport | None
             + ("" if overview.rate_measured else " (from the frames' times)"))
     run_rows = [*inputs, ("frames processed", overview.frames), ("frames ok", overview.ok),
                 ("duration", f"{overview.duration_s:.2f} s"), ("speed", rate)]
-    body = page.table_html(("", ""), run_rows)
+    body = page.table_html(None, run_rows)
     if overview.skipped:
         body += page.table_html(("status", "frames", "meaning"), [
             (s, n, STATUS_MEANINGS.get(s, "")) for s, n in overview.skipped.items()])
@@ -183,7 +183,7 @@ def _diagnose_sections(run: DiagnoseRun, sources: ReportSources, out_dir: Path,
                           for p in e.parameters),
                 e.evidence if isinstance(e.evidence, str) else json.dumps(e.evidence))
                for e in diagnosis.effects]
-    body = page.table_html(("", ""), rows) + page.table_html(
+    body = page.table_html(None, rows) + page.table_html(
         ("effect", "held-out before (mm)", "after (mm)", "removed", "parameters (95 % CI)",
          "evidence"), effects)
     sections = [page.Section("Diagnosis", body)]

@@ -80,6 +80,7 @@ def scene_div(scene: ContactScene, key: str) -> str:
             marker={"size": 5, "color": _list(scene.magnitudes_n), "colorscale": "Viridis",
                     "colorbar": {"title": "force (N)"}})
     figure.update_layout(title=scene.title, height=620, template="plotly_white",
+                         legend={"x": 0.0, "y": 0.95},
                          scene={"aspectmode": "data", "xaxis_title": "x (mm)",
                                 "yaxis_title": "y (mm)", "zaxis_title": "z (mm)"})
     return _div(figure, key)
@@ -91,11 +92,13 @@ def image_tag(png: Path, caption: str) -> str:
             f'src="data:image/png;base64,{data}"><br><small>{html.escape(caption)}</small></div>')
 
 
-def table_html(header: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
-    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
+def table_html(header: Sequence[str] | None, rows: Sequence[Sequence[object]]) -> str:
+    """A table; header None for a two-column list of names and values."""
+    head = "" if header is None else "<tr>" + "".join(
+        f"<th>{html.escape(str(h))}</th>" for h in header) + "</tr>"
     body = "".join("<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in row) + "</tr>"
                    for row in rows)
-    return f"<table><tr>{head}</tr>{body}</table>"
+    return f"<table>{head}{body}</table>"
 
 
 def paragraph(text: str, css: str = "") -> str:
