@@ -2,19 +2,22 @@
 
 from __future__ import annotations
 
+import json
 import math
 import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from softforce_cli.calibration.rigid import RigidTransform
-from softforce_cli.errors import ModelError
+from softforce_cli.errors import ModelError, ScenarioError
 from softforce_cli.fem.cables import CableInputs
 from softforce_cli.fem.materials import Material
 from softforce_cli.fem.model import NEWTON_PER_KG_MM_S2, FEModel
 from softforce_cli.fem.statics import solve_equilibrium
 from softforce_cli.fem.supports import NodeSprings, SupportPlane
+from softforce_cli.io.mcap_reader import iter_frames, read_summary
 from softforce_cli.model.config import load_config
 from softforce_cli.model.effect_physics import fe_model_with_effects
 from softforce_cli.model.effects import (
@@ -33,6 +36,8 @@ from softforce_cli.model.effects import (
 from softforce_cli.model.mesh_io import rotation_from_euler_deg
 from softforce_cli.model.regions import element_regions, node_regions
 from softforce_cli.model.robot import load_robot, robot_with_effects
+from softforce_cli.sim.scenario import load_scenario
+from softforce_cli.sim.simulate import simulate
 from tests.conftest import SAMPLE_ROBOT
 
 CABLES = ("north", "west", "south", "east")
@@ -301,3 +306,62 @@ def test_sensor_effects_move_points_as_a_camera_would():
     turn = camera_offset((make_effect("extrinsic_offset", rotation_z_deg=30.0),))
     np.testing.assert_allclose(turn.apply(np.array([[1.0, 0.0, 0.0]])),
                                [[math.cos(math.pi / 6), 0.5, 0.0]], atol=1e-12)
+
+
+def _scenario(tmp_path, effects: str, frames: str, name: str = "conceal") -> Path:
+    path = tmp_path / f"{name}.toml"
+    path.write_text(f'robot = "{SAMPLE_ROBOT}"\nseed = 2\n[camera]\nwidth = 64\nheight = 48\n'
+                    f"noise = false\n{effects}\n{frames}")
+    return path
+
+
+def test_simulate_conceals_effects_in_the_truth_only(tmp_path):
+    effects = "\n".join(effect_toml(e) for e in (
+        make_effect("cable_slack", "north", slack_mm=2.0),
+        make_effect("cable_friction", "north", play_mm=1.0),
+        make_effect("extrinsic_offset", translation_x_mm=5.0)))
+    frames = "".join(f"[[frame]]\nactuation = [{u}, 0.0, 0.0, 0.0]\nrepeat = {r}\n"
+                     for u, r in ((0.0, 1), (4.0, 2), (1.0, 1)))
+    result = simulate(_scenario(tmp_path, effects, frames), tmp_path / "rec.mcap")
+    truth = json.loads(result.truth.read_text())
+    assert [e["name"] for e in truth["concealed_effects"]] == [
+        "cable_slack", "cable_friction", "extrinsic_offset"]
+    assert truth["concealed_effects"][0]["parameters"]["slack_mm"] == {"value": 2.0, "unit": "mm"}
+    # north: play 1 then slack 2 on the commanded 0, 4, 4, 1 -> 0, 3, 3, 2 -> 0, 1, 1, 0
+    effective = [f["effects"]["effective_actuation"][0] for f in truth["frames"]]
+    assert effective == [0.0, 1.0, 1.0, 0.0]
+    for record in truth["frames"][1:3]:  # the taut cable shortens by what it receives
+        assert record["cable_displacements_mm"][0] == pytest.approx(1.0, abs=1e-6)
+    # the recording carries the commanded actuation, nothing of the effects
+    commanded = [frame.actuation.values[0] for frame in iter_frames(result.recording)]
+    assert commanded == [0.0, 4.0, 4.0, 1.0]
+    assert "effect" not in json.dumps(read_summary(result.recording).metadata)
+    camera = truth["camera"]
+    nominal = np.array(camera["rotation"])
+    np.testing.assert_allclose(np.array(camera["actual_translation_mm"]),
+                               np.array(camera["translation_mm"]) + nominal @ [5.0, 0, 0],
+                               atol=1e-6)
+
+
+def test_simulate_scales_the_depth_by_a_concealed_bias(tmp_path):
+    frames = "[[frame]]\nactuation = [0.0, 0.0, 0.0, 0.0]\n"
+    bias = effect_toml(make_effect("depth_bias", scale=0.05))
+    depths = []
+    for name, effects in (("plain", ""), ("biased", bias)):
+        result = simulate(_scenario(tmp_path, effects, frames, name), tmp_path / f"{name}.mcap")
+        depths.append(next(iter(iter_frames(result.recording))).depth_mm.astype(float))
+    hit = (depths[0] > 0) & (depths[1] > 0)
+    # both depths are rounded to whole mm: 1.05 times the plain one within 0.5 + 1.05 x 0.5
+    assert hit.mean() > 0.9
+    assert np.abs(depths[1][hit] - 1.05 * depths[0][hit]).max() <= 1.025 + 1e-9
+
+
+def test_scenario_effect_errors_are_one_line(tmp_path):
+    frames = "[[frame]]\nactuation = [0.0, 0.0, 0.0, 0.0]\n"
+    bad = _scenario(tmp_path, '[[effect]]\nname = "cable_slack"\ncable = "up"\nslack_mm = 1.0',
+                    frames, "bad")
+    with pytest.raises(ScenarioError, match=r"bad.toml: .*cable 'up' unknown"):
+        simulate(bad, tmp_path / "bad.mcap")
+    unknown = _scenario(tmp_path, '[[effect]]\nname = "magic"', frames, "unknown")
+    with pytest.raises(ScenarioError, match=r"unknown.toml: effect\[0\]: name 'magic' unknown"):
+        load_scenario(unknown)

@@ -193,30 +193,36 @@ def make_effect(name: str, target: str | None = None, **values: float) -> Effect
     return _parse_table(table, "effect")
 
 
-def parse_effects(tables: Any, cables: Sequence[str] = (), regions: Sequence[str] | None = None
-                  ) -> tuple[Effect, ...]:
+def parse_effects(tables: Any, cables: Sequence[str] | None = (),
+                  regions: Sequence[str] | None = None) -> tuple[Effect, ...]:
     """`[[effect]]` tables -> effects; EffectError naming the table and key on bad input.
 
-    cables  : the robot's cable names (targets of cable effects).
+    cables  : the robot's cable names (targets of cable effects), or None to check the
+              targets later (check_targets), when the robot is known.
     regions : the region names regional effects may target (model.regions.region_names);
               None accepts `base`, `apex` and the cable names.
     """
     if not isinstance(tables, list):
         raise EffectError(f"effect must be an array of tables ([[effect]]), got {tables!r}")
-    regions = ("base", "apex", *cables) if regions is None else tuple(regions)
-    effects = []
-    for i, table in enumerate(tables):
-        effect = _parse_table(table, f"effect[{i}]")
-        allowed = {"cable": tuple(cables), "region": regions}.get(effect.spec.target)
-        if allowed is not None and effect.target not in allowed:
-            raise EffectError(f"effect[{i}] ({effect.name}): {effect.spec.target} "
-                              f"{effect.target!r} unknown; use one of {', '.join(allowed)}")
-        effects.append(effect)
+    effects = tuple(_parse_table(table, f"effect[{i}]") for i, table in enumerate(tables))
+    if cables is not None:
+        check_targets(effects, cables, regions)
     labels = [e.label for e in effects]
     for label in labels:
         if labels.count(label) > 1:
             raise EffectError(f"effect {label} appears twice; give each effect once")
-    return tuple(effects)
+    return effects
+
+
+def check_targets(effects: Iterable[Effect], cables: Sequence[str],
+                  regions: Sequence[str] | None = None) -> None:
+    """EffectError when an effect targets a cable or region the robot does not have."""
+    regions = ("base", "apex", *cables) if regions is None else tuple(regions)
+    for i, effect in enumerate(effects):
+        allowed = {"cable": tuple(cables), "region": regions}.get(effect.spec.target)
+        if allowed is not None and effect.target not in allowed:
+            raise EffectError(f"effect[{i}] ({effect.name}): {effect.spec.target} "
+                              f"{effect.target!r} unknown; use one of {', '.join(allowed)}")
 
 
 def _parse_table(table: Any, where: str) -> Effect:

@@ -17,10 +17,12 @@ import numpy as np
 
 from softforce_cli.errors import ScenarioError, SolverError
 from softforce_cli.fem.attachment import Attachment
+from softforce_cli.fem.model import FEModel
 from softforce_cli.fem.statics import Equilibrium, PointLoads, solve_equilibrium
 from softforce_cli.model.config import load_config
+from softforce_cli.model.effects import effects_of_kind
 from softforce_cli.model.mesh_io import read_tet_mesh
-from softforce_cli.model.robot import Robot, build_robot
+from softforce_cli.model.robot import Robot, build_robot, robot_with_effects
 from softforce_cli.sim.scenario import FrameSpec, LoadSpec, Scenario
 
 # Load steps tried, in turn, when a state cannot be reached in one Newton solve.
@@ -52,7 +54,9 @@ class TruthState:
 
 
 def truth_robot(scenario: Scenario) -> Robot:
-    """The scenario's robot, with its law replaced by the scenario's `law` if given."""
+    """The scenario's robot, with its law replaced by the scenario's `law` if given, and the
+    scenario's concealed physics effects added to its own (actuation and sensor effects act
+    in sim.simulate; creep, which needs frame times, too)."""
     config = load_config(scenario.robot)
     if scenario.law is not None:
         config = dataclasses.replace(
@@ -60,7 +64,9 @@ def truth_robot(scenario: Scenario) -> Robot:
         )
     spec = config.mesh
     mesh = read_tet_mesh(spec.path, spec.scale, spec.rotation_deg, spec.translation_mm)
-    return build_robot(config, mesh)
+    robot = build_robot(config, mesh)
+    physics = effects_of_kind(scenario.effects, "physics")
+    return robot_with_effects(robot, robot.effects + physics) if physics else robot
 
 
 def load_points(
@@ -88,8 +94,10 @@ def load_points(
     return attachment, np.array(forces).reshape(-1, 3), np.array(normals).reshape(-1, 3)
 
 
-def solve_frame(robot: Robot, frame: FrameSpec, start: Equilibrium | None) -> TruthState:
-    """Equilibrium of the truth robot under a frame's actuation and loads.
+def solve_frame(robot: Robot, frame: FrameSpec, start: Equilibrium | None,
+                model: FEModel | None = None) -> TruthState:
+    """Equilibrium of the truth robot (or of `model`, its FE model of this frame's context)
+    under a frame's actuation and loads.
 
     Starts from `start` (the previous frame) and, if Newton fails there, walks to the target
     in equal load steps (continuation).
@@ -101,7 +109,7 @@ def solve_frame(robot: Robot, frame: FrameSpec, start: Equilibrium | None) -> Tr
         )
     target = np.array(frame.actuation, dtype=float)
     attachment, forces, normals = load_points(robot, frame.loads)
-    model = robot.fe_model
+    model = robot.fe_model if model is None else model
     controlled = robot.cable_inputs(target).displacement_controlled
     previous_actuation = (
         np.zeros_like(target)

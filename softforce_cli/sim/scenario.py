@@ -16,6 +16,7 @@ import numpy as np
 
 from softforce_cli.errors import ScenarioError
 from softforce_cli.fem.materials import LAWS
+from softforce_cli.model.effects import Effect, EffectError, parse_effects
 
 LOAD_KINDS = ("weight", "probe")
 # Bounds that keep a typo from asking for hours of work: a 4096-pixel image side (the D415
@@ -34,6 +35,7 @@ _KEYS = {
         "scene",
         "markers",
         "frame",
+        "effect",
     },
     "camera": {
         "width",
@@ -114,6 +116,9 @@ class Scenario:
     publish_markers: bool
     marker_sigma_mm: float
     frames: tuple[FrameSpec, ...]
+    # effects concealed in the truth (model.effects; docs/effects.md), targets checked
+    # against the truth robot by sim.simulate.prepare_simulation
+    effects: tuple[Effect, ...] = ()
 
     @property
     def frame_count(self) -> int:
@@ -156,6 +161,10 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     check.keys(scene, "scene", "[scene]")
     markers = data.get("markers", {})
     check.keys(markers, "markers", "[markers]")
+    try:
+        effects = parse_effects(data.get("effect", []), cables=None)
+    except EffectError as error:
+        raise ScenarioError(f"{path}: {error}") from error
     return Scenario(
         source=path,
         name=str(data.get("name", path.stem)),
@@ -185,6 +194,7 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
         publish_markers=bool(markers.get("publish", False)),
         marker_sigma_mm=check.non_negative(markers.get("sigma_mm", 0.0), "markers.sigma_mm"),
         frames=tuple(_frame(frame, i, check) for i, frame in enumerate(frames)),
+        effects=effects,
     )
 
 

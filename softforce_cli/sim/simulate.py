@@ -4,10 +4,18 @@ For each state of the scenario the truth robot is solved, its deformed surface a
 and weights are ray cast by a virtual D415 above the robot, and the frame is written with its
 actuation (and optional noisy marker observations). The ground truth never enters the
 recording (DESIGN.md section 5).
+
+A scenario's `[[effect]]` tables are concealed in the truth (docs/effects.md): physics
+effects in the truth robot, actuation effects between the commanded and the received cable
+displacement, sensor effects in the virtual camera (depth scaled, camera moved); the
+recording carries the commanded actuation only, the truth file the effects and their values.
+A state is solved again within a held frame when its effective actuation or (creep) its
+modulus changes.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -21,6 +29,20 @@ from softforce_cli.camera.intrinsics import CameraIntrinsics
 from softforce_cli.errors import ScenarioError
 from softforce_cli.io.atomic import atomic_write_text, check_writable
 from softforce_cli.io.mcap_writer import write_recording
+from softforce_cli.model.effect_physics import fe_model_with_effects
+from softforce_cli.model.effects import (
+    Effect,
+    EffectError,
+    FrameContext,
+    camera_offset,
+    check_targets,
+    creep_factor,
+    depth_scale,
+    effective_actuation,
+    effects_of_kind,
+    frame_contexts,
+)
+from softforce_cli.model.regions import region_names
 from softforce_cli.model.robot import Robot
 from softforce_cli.sim.camera_pose import invert_pose, look_at, transform_points
 from softforce_cli.sim.depth_noise import apply_d415
@@ -79,6 +101,7 @@ def prepare_simulation(scenario_path: Path, output: Path, force: bool = False) -
                 f"{scenario.source}: frame[{index}] gives {len(frame.actuation)} actuation "
                 f"values for the {len(robot.cable_specs)} cables of {robot.config.source}"
             )
+    _check_effects(scenario, robot)
     camera = scenario.camera
     return Simulation(
         scenario=scenario,
@@ -93,6 +116,52 @@ def prepare_simulation(scenario_path: Path, output: Path, force: bool = False) -
         truth=truth_file,
         force=force,
     )
+
+
+def _check_effects(scenario: Scenario, robot: Robot) -> None:
+    """ScenarioError when a concealed effect targets a cable or region the truth robot lacks,
+    or acts on a force-controlled cable's displacement."""
+    try:
+        check_targets(scenario.effects, [c.name for c in robot.cable_specs], region_names(robot))
+    except EffectError as error:
+        raise ScenarioError(f"{scenario.source}: {error}") from error
+    controls = {c.name: c.control for c in robot.cable_specs}
+    for effect in effects_of_kind(scenario.effects, "actuation"):
+        if controls[effect.target] != "displacement":
+            raise ScenarioError(f"{scenario.source}: {effect.name} acts on a cable's "
+                                f"displacement; cable {effect.target!r} is force-controlled")
+
+
+@dataclass(frozen=True)
+class FramePlan:
+    """Every recorded frame of a scenario, repeats expanded.
+
+    spec_index : (n,) the scenario frame ([[frame]]) each recorded frame comes from.
+    times_s    : (n,) frame times, s (frame_interval_s apart).
+    commanded  : (n, a) the actuation the recording carries.
+    effective  : (n, a) what the body receives after the actuation effects.
+    contexts   : per frame, for the history effects.
+    """
+
+    spec_index: np.ndarray
+    times_s: np.ndarray
+    commanded: np.ndarray
+    effective: np.ndarray
+    contexts: list[FrameContext]
+
+
+def frame_plan(scenario: Scenario, cable_names: tuple[str, ...]) -> FramePlan:
+    """The recorded frames of a scenario, with their effective actuation."""
+    spec_index = np.repeat(np.arange(len(scenario.frames)),
+                           [frame.repeat for frame in scenario.frames])
+    commanded = np.array([scenario.frames[i].actuation for i in spec_index],
+                         dtype=float).reshape(len(spec_index), len(cable_names))
+    times = np.arange(len(spec_index)) * scenario.frame_interval_s
+    contexts = frame_contexts(times, commanded)
+    actuation_effects = effects_of_kind(scenario.effects, "actuation")
+    effective = (effective_actuation(actuation_effects, contexts, cable_names)
+                 if actuation_effects else commanded)
+    return FramePlan(spec_index, times, commanded, effective, contexts)
 
 
 def run_simulation(simulation: Simulation, progress: Progress | None = None) -> SimulationResult:
@@ -144,47 +213,61 @@ def _frames(
     progress: Progress | None,
 ) -> Iterator[RgbdFrame]:
     rng = np.random.default_rng(scenario.seed)
-    cam_from_world = invert_pose(world_from_cam)
+    # the camera truly stands where the concealed extrinsic offset puts it
+    actual_world_from_cam = world_from_cam @ camera_offset(scenario.effects).as_matrix()
+    cam_from_world = invert_pose(actual_world_from_cam)
     names = tuple(spec.name for spec in robot.cable_specs)
     control = robot.cable_specs[0].control if names else "displacement"
+    plan = frame_plan(scenario, names)
+    creep = any(e.name == "viscoelastic_creep" for e in scenario.effects)
     state: TruthState | None = None
-    index = 0
-    for frame in scenario.frames:
-        state = solve_frame(robot, frame, None if state is None else state.equilibrium)
-        view = render(_scene(scenario, robot, state), intrinsics, world_from_cam)
-        markers_robot = robot.marker_points.positions(state.equilibrium.positions_mm)
-        markers_cam = (
-            transform_points(cam_from_world, markers_robot) if len(markers_robot) else markers_robot
+    solved_key = None
+    for index, spec_index in enumerate(plan.spec_index):
+        frame = scenario.frames[spec_index]
+        context = plan.contexts[index]
+        modulus = creep_factor(scenario.effects, context.hold_s) if creep else 1.0
+        key = (int(spec_index), tuple(plan.effective[index]), modulus)
+        if key != solved_key:  # a new [[frame]], or the effects changed the state in a hold
+            model = fe_model_with_effects(robot, robot.effects, context) if creep else None
+            state = solve_frame(
+                robot, dataclasses.replace(frame, actuation=tuple(plan.effective[index])),
+                None if state is None else state.equilibrium, model,
+            )
+            view = _biased(render(_scene(scenario, robot, state), intrinsics,
+                                  actual_world_from_cam), depth_scale(scenario.effects))
+            markers_robot = robot.marker_points.positions(state.equilibrium.positions_mm)
+            markers_cam = (transform_points(cam_from_world, markers_robot)
+                           if len(markers_robot) else markers_robot)
+            solved_key = key
+        depth, color = _sensor(view, intrinsics, rng, scenario.camera.noise)
+        observed = markers_cam + scenario.marker_sigma_mm * rng.standard_normal(
+            markers_cam.shape
         )
-        for _ in range(frame.repeat):
-            depth, color = _sensor(view, intrinsics, rng, scenario.camera.noise)
-            observed = markers_cam + scenario.marker_sigma_mm * rng.standard_normal(
-                markers_cam.shape
-            )
-            time_ns = round(index * scenario.frame_interval_s * 1e9)
-            yield RgbdFrame(
-                time_ns=time_ns,
-                color=color,
-                depth_mm=depth,
-                intrinsics=intrinsics,
-                actuation=Actuation(names, control, np.array(frame.actuation, dtype=float)),
-                markers=Markers(robot.marker_ids, observed) if scenario.publish_markers else None,
-            )
-            truth_frames.append(
-                _truth_frame(
-                    index,
-                    time_ns,
-                    robot,
-                    frame.actuation,
-                    state,
-                    markers_robot,
-                    markers_cam,
-                    observed,
-                )
-            )
-            index += 1
-            if progress is not None:
-                progress(index, scenario.frame_count)
+        time_ns = round(index * scenario.frame_interval_s * 1e9)
+        yield RgbdFrame(
+            time_ns=time_ns,
+            color=color,
+            depth_mm=depth,
+            intrinsics=intrinsics,
+            actuation=Actuation(names, control, np.array(frame.actuation, dtype=float)),
+            markers=Markers(robot.marker_ids, observed) if scenario.publish_markers else None,
+        )
+        record = _truth_frame(index, time_ns, robot, frame.actuation, state, markers_robot,
+                              markers_cam, observed)
+        if scenario.effects:
+            record["effects"] = {
+                "effective_actuation": _rounded(plan.effective[index]),
+                "hold_s": round(context.hold_s, 9),
+                "modulus_factor": round(modulus, 9),
+            }
+        truth_frames.append(record)
+        if progress is not None:
+            progress(index + 1, scenario.frame_count)
+
+
+def _biased(view: RenderedView, scale: float) -> RenderedView:
+    """The view with its depth scaled by a concealed depth_bias (itself when scale is 1)."""
+    return view if scale == 1.0 else dataclasses.replace(view, depth_mm=view.depth_mm * scale)
 
 
 def _scene(scenario: Scenario, robot: Robot, state: TruthState) -> list[SceneSurface]:
@@ -272,6 +355,7 @@ def _truth_document(
     world_from_cam: np.ndarray,
     frames: list[dict],
 ) -> dict:
+    actual = world_from_cam @ camera_offset(scenario.effects).as_matrix()
     return {
         "softforce_version": __version__,
         "scenario": scenario.source.name,
@@ -294,8 +378,24 @@ def _truth_document(
             # p_robot = R p_cam + T, the transform calibration estimates (DESIGN.md section 3)
             "rotation": _rounded(world_from_cam[:3, :3], 12),
             "translation_mm": _rounded(world_from_cam[:3, 3], 9),
+            # where the camera truly stood: moved by a concealed extrinsic_offset, if any
+            "actual_rotation": _rounded(actual[:3, :3], 12),
+            "actual_translation_mm": _rounded(actual[:3, 3], 9),
             "noise": scenario.camera.noise,
             "marker_sigma_mm": scenario.marker_sigma_mm,
         },
+        # what the recording hides (docs/effects.md): only tests and studies read it
+        "concealed_effects": [_effect_record(effect) for effect in scenario.effects],
         "frames": frames,
+    }
+
+
+def _effect_record(effect: Effect) -> dict:
+    return {
+        "name": effect.name,
+        "kind": effect.spec.kind,
+        "target": effect.target,
+        "parameters": {
+            p.name: {"value": effect[p.name], "unit": p.unit} for p in effect.spec.parameters
+        },
     }
