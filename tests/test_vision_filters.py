@@ -16,6 +16,7 @@ from softforce_cli.vision.filters import (
     crop_box_from_bounds,
     fit_table_plane,
     neighbour_counts,
+    radius_pairs,
     remove_radius_outliers,
     remove_radius_outliers_with_pairs,
     remove_table,
@@ -151,3 +152,18 @@ def test_no_table_in_the_slab_means_nothing_removed():
     plane = fit_table_plane(cloud, -37.5, np.array([0, 0, 40.0]), 30.0, 4.0, 200)
     assert plane is None
     assert len(remove_table(cloud, plane, 8.0)) == 500
+
+
+def test_outlier_pairs_keep_the_same_points_as_open3d_on_a_surface_with_edges():
+    """The kept points against open3d's on a noisy strip whose many edge points sit near
+    the threshold, with speckles; the pairs are all those of the kept points within 3 mm."""
+    rng = np.random.default_rng(5)
+    strip = rng.uniform(0, 1, (3000, 3)) * [60, 6, 0.5] + rng.normal(0, 0.3, (3000, 3))
+    points = np.vstack([strip, rng.uniform(-30, 90, (100, 3))])
+    cloud = PointCloud(points, np.zeros((len(points), 3), dtype=np.uint8))
+    kept, pairs = remove_radius_outliers_with_pairs(cloud, 5.0, 350, 3.0)
+    o3d_cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    _, o3d_kept = o3d_cloud.remove_radius_outlier(nb_points=350, radius=5.0)
+    np.testing.assert_array_equal(kept.points_mm, points[np.sort(o3d_kept)])
+    assert 0.5 * len(strip) < len(kept) < len(strip)  # edge points and speckles go
+    assert len(pairs) == len(radius_pairs(kept.points_mm, 3.0))

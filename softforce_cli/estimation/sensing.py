@@ -21,11 +21,11 @@ from softforce_cli.calibration.rigid import RigidTransform
 from softforce_cli.camera.frame import RgbdFrame
 from softforce_cli.errors import SensingError, SolverError
 from softforce_cli.estimation.intensity import IntensityProblem, solve_intensities
+from softforce_cli.estimation.linear_model import LinearizedModel
 from softforce_cli.estimation.results import ContactEstimate, FrameEstimate
 from softforce_cli.estimation.settings import SenseSettings
 from softforce_cli.estimation.tracking import ContactTracker
 from softforce_cli.fem.attachment import Attachment
-from softforce_cli.fem.compliance import compliance, linearize
 from softforce_cli.fem.statics import solve_equilibrium
 from softforce_cli.model.mesh import vertex_normals
 from softforce_cli.model.robot import Robot
@@ -73,7 +73,8 @@ class Update:
 
 class ForceSensor:
     """The estimator's state between frames: the FE configuration, its cable tensions, the
-    factorisation to reuse, the robot's colour and the contact tracks.
+    linearisation to reuse (estimation.linear_model), the robot's colour and the contact
+    tracks.
 
     robot_from_camera maps camera points to robot points (calibration); start_actuation (a,)
     the calibrated cable inputs, in each cable's control units.
@@ -103,7 +104,8 @@ class ForceSensor:
         self.tensions = start.cable_tensions_n
         self._normals_at: np.ndarray | None = None
         self._normals = np.zeros((0, 3))
-        self.factorization = None
+        self.linear: LinearizedModel | None = None
+        self.relinearizations = 0
         self.tracker = ContactTracker(settings.estimation.track_radius_mm)
         # taring: the first tare_frames processed frames are taken as free of external force,
         # and each feature's mean normal offset there (observed - model) is subtracted from
@@ -164,7 +166,7 @@ class ForceSensor:
                 outcome = update
         except SolverError:
             self.positions, self.tensions = saved
-            self.factorization = None
+            self.linear = None
             return FrameEstimate(index, time_s, "solver", timings_ms=timings, **counts)
         if outcome is None:
             return FrameEstimate(index, time_s, "fewmatches", timings_ms=timings, **counts)
@@ -261,14 +263,12 @@ class ForceSensor:
         unknowns = len(self.controls) + len(columns.directions)
         if matched.sum() < max(self.settings.estimation.min_matched, unknowns + 1):
             return None
+        linear = self._linearized()
         node_count = self.model.node_count
-        lin = linearize(self.model, self.positions, self.tensions,
-                        factorization=self.factorization)
-        self.factorization = lin.factorization
-        force_rows = columns.points.directional_rows(columns.directions, node_count)
+        responses = linear.force_responses(columns.points, columns.directions)
         effector_rows = self.features.subset(matched).directional_rows(normals[matched],
                                                                         node_count)
-        projected = compliance(lin, effector_rows, force_rows)
+        projected = linear.compliance(effector_rows, responses)
         clock.lap("fe")
         problem = IntensityProblem(
             projected.W_ea, projected.W_ef, projected.delta_e_free,
@@ -279,14 +279,25 @@ class ForceSensor:
         solution = solve_intensities(problem, self.controls, self.actuation,
                                      self.settings.estimation.regularization)
         clock.lap("qp")
-        # eq. 6: x <- x + dx_free + K^-1 (H_a^T lam_a + H_f^T lam_f), one more solve
-        loads = (solution.cable_tensions_n @ self.model.cable_jacobian(self.positions)
-                 + force_rows.T @ solution.contact_forces_n)
-        step = lin.free_motion_mm + lin.responses(loads[None]).reshape(-1, 3)
-        self.positions = self.positions + step
+        # eq. 6 at the linearisation x0: x <- x0 + dx_free + K0^-1 (H_a^T lam_a + H_f^T lam_f)
+        self.positions = linear.configuration(solution.cable_tensions_n, responses,
+                                              solution.contact_forces_n)
         self.tensions = solution.cable_tensions_n
         clock.lap("update")
         return Update(matches, columns, solution.contact_forces_n, solution.residual_mm)
+
+    def _linearized(self) -> LinearizedModel:
+        """The linearisation to use at the current configuration: the cached one while the
+        configuration is within relinearize_mm of where it was made, else a new one here
+        (K and the internal forces at the current x: a Newton step)."""
+        linear = self.linear
+        tolerance = self.settings.estimation.relinearize_mm
+        if linear is None or linear.moved_mm(self.positions) > tolerance:
+            self.linear = linear = LinearizedModel(
+                self.model, self.positions, self.tensions,
+                factorization=None if linear is None else linear.factorization)
+            self.relinearizations += 1
+        return linear
 
     def _contacts(self, update: Update) -> tuple[ContactEstimate, ...]:
         columns = update.columns

@@ -38,6 +38,12 @@ class EstimationSettings:
                          frame and lets the configuration converge over the following frames;
                          two reach equilibrium within a frame when the load changes abruptly
                          between frames (one frame per state in a slow recording).
+    relinearize_mm     : the FE model is linearised again (K(x) assembled and factorised, the
+                         internal forces at x: a Newton step) when an update has moved a node
+                         more than this from the configuration of the last linearisation;
+                         between, the compliance and the configuration come from that
+                         linearisation (estimation.linear_model). 0 relinearises at every
+                         update (the paper's eq. 6).
     track_radius_mm    : a contact within this of one of the previous frame's keeps its index
                          (a probe slides a few mm between frames at 30 fps).
     min_matched        : fewer matched features than this (or than unknowns + 1) skips the frame.
@@ -48,6 +54,7 @@ class EstimationSettings:
     force_model: str = "normal"
     contact_at: str = "node"
     updates_per_frame: int = 2
+    relinearize_mm: float = 0.5
     track_radius_mm: float = 15.0
     min_matched: int = 6
     min_robot_points: int = 200
@@ -60,6 +67,8 @@ class EstimationSettings:
         if self.contact_at not in CONTACT_AT:
             raise SensingError(f"estimation.contact_at {self.contact_at!r} unknown; use one of "
                                f"{', '.join(CONTACT_AT)}")
+        if self.relinearize_mm < 0:
+            raise SensingError("estimation.relinearize_mm must be >= 0")
         if self.updates_per_frame < 1:
             raise SensingError("estimation.updates_per_frame must be at least 1")
 
