@@ -10,6 +10,7 @@ import typer
 from softforce_cli.cli.common import ForceOption, progress_bar, stderr, stdout
 from softforce_cli.cli.interrupt import deferred_interrupt, signal_name
 
+FORMATS = ("html", "csv", "json")
 FORMAT_HELP = ("html: the terminal summary, report.html and a PNG per figure (default); csv "
                "or json: one table (--table) re-exported, to -o FILE or standard output.")
 
@@ -42,9 +43,9 @@ def report(
     force: ForceOption = False,
 ) -> None:
     """Summarise a sense or diagnose output: terminal summary, HTML page, PNGs, tables, MCAP."""
-    from softforce_cli.report.build import ReportSources, build_report, sense_truth
-    from softforce_cli.report.export import FORMATS
+    # inputs are checked before the plotting libraries load: a mistake is reported at once
     from softforce_cli.report.loading import ReportError, load_run
+    from softforce_cli.report.sources import ReportSources, robot_path, sense_truth
 
     if format_ not in FORMATS:
         raise ReportError(f"--format {format_!r}: use one of {', '.join(FORMATS)}")
@@ -53,9 +54,18 @@ def report(
                           "add --format csv or --format json")
     run = load_run(folder)
     sources = ReportSources(robot=robot, recording=recording)
+    if run.sense is not None and (format_ == "html" or mcap is not None):
+        robot_path(run.sense, sources)  # a robot file named but missing: fail now
     if format_ == "html":
+        from softforce_cli.io.atomic import check_writable
+        from softforce_cli.report.paths import PAGE_NAME
+
+        out_dir = output or folder / "report"
+        check_writable(out_dir / PAGE_NAME, force)
+        from softforce_cli.report.build import build_report
+
         with stderr.status("making the report...") as status:
-            result = build_report(run, output or folder / "report", sources, force=force,
+            result = build_report(run, out_dir, sources, force=force,
                                   step=lambda text: status.update(f"{text}..."))
         _print_summary(run, result)
         stderr.print(f"wrote {result.page} and {len(result.pngs)} figures (PNG) beside it")

@@ -15,20 +15,12 @@ from softforce_cli.report.charts import Chart, diagnose_charts, sense_charts
 from softforce_cli.report.figures_png import save_chart_png, save_projections_png
 from softforce_cli.report.loading import DiagnoseRun, ReportError, RunFolder, SenseRun
 from softforce_cli.report.overview import STATUS_MEANINGS, Overview, sense_overview
-from softforce_cli.report.paths import resolve_input, truth_path
+from softforce_cli.report.paths import PAGE_NAME
 from softforce_cli.report.scene import ContactScene, location_scene, sense_scene
-from softforce_cli.report.truth import TruthReport, compare_run_with_truth
+from softforce_cli.report.sources import ReportSources, robot_path, sense_truth
+from softforce_cli.report.truth import TruthReport
 
-PAGE_NAME = "report.html"
 Step = Callable[[str], None]
-
-
-@dataclass(frozen=True)
-class ReportSources:
-    """Files given on the command line instead of those the run names (None: the run's)."""
-
-    robot: Path | None = None
-    recording: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -43,27 +35,9 @@ class Report:
 
 
 def sense_robot(run: SenseRun, sources: ReportSources) -> Robot | None:
-    """The robot the run used (or --robot); None when sense.json names none; ReportError when
-    the file it names is not found."""
-    if sources.robot is not None:
-        return _load(Path(sources.robot))
-    named = run.input_path("robot")
-    if named is None:
-        return None
-    path = resolve_input(named, run.folder)
-    if path is None:
-        raise ReportError(f"the robot file {named} that {run.folder / 'sense.json'} names is not "
-                          f"found (from here or above {run.folder}); pass --robot ROBOT.toml")
-    return _load(path)
-
-
-def sense_truth(run: SenseRun, sources: ReportSources) -> TruthReport | None:
-    """The comparison with `<recording>.truth.json` when the recording has one."""
-    recording = sources.recording or resolve_input(run.input_path("recording"), run.folder)
-    if recording is None:
-        return None
-    truth_file = truth_path(Path(recording))
-    return compare_run_with_truth(run, truth_file) if truth_file.is_file() else None
+    """The robot the run used (sources.robot_path), loaded; None when the run names none."""
+    path = robot_path(run, sources)
+    return None if path is None else _load(path)
 
 
 def build_report(folder: RunFolder, out_dir: Path, sources: ReportSources = ReportSources(),

@@ -14,7 +14,6 @@ import numpy as np
 from softforce_cli.report.loading import ReportError, RunFolder, Table
 from softforce_cli.report.truth import TruthReport
 
-FORMATS = ("html", "csv", "json")
 # Columns that count things: written as integers, not as the CSV reader's floats.
 INTEGER_COLUMNS = frozenset({"frame", "contact", "feature", "contacts", "points_kept",
                              "features_matched", "features_hidden", "features_rejected",

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+PAGE_NAME = "report.html"  # the page, in the report's folder
+
 
 def resolve_input(text: str | None, folder: Path) -> Path | None:
     """The file a run was given as `text`, or None when it cannot be found.
