@@ -29,6 +29,7 @@ def _register_commands() -> None:
         return
     from softforce_cli.cli import (
         calibrate_command,
+        diagnose_command,
         model_commands,
         record_commands,
         report_command,
@@ -41,6 +42,7 @@ def _register_commands() -> None:
     app.command("simulate")(simulate_command.simulate)
     app.command("calibrate")(calibrate_command.calibrate)
     app.command("sense")(sense_command.sense)
+    app.command("diagnose")(diagnose_command.diagnose)
     app.command("report")(report_command.report)
 
 
