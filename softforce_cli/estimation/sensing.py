@@ -34,7 +34,7 @@ from softforce_cli.vision.feature_matching import FeatureMatches, match_features
 from softforce_cli.vision.filters import crop_box_from_bounds
 from softforce_cli.vision.pipeline import VisionResult, process_frame
 from softforce_cli.vision.point_cloud import cloud_from_frame
-from softforce_cli.vision.segmentation import learn_robot_colour
+from softforce_cli.vision.segmentation import Segmentation, learn_robot_colour
 from softforce_cli.vision.settings import VisionSettings
 
 # Matched features within this distance of a contact give its local fit residual (mm): about
@@ -158,12 +158,17 @@ class ForceSensor:
         try:
             for _ in range(self.settings.estimation.updates_per_frame):
                 if outcome is not None:
-                    matches = self._match(segmentation.robot.points_mm)
+                    matches = self._match(segmentation)
                     clock.lap("matching")
+                matched_at = self.positions[self.robot.feature_nodes]
                 update = self.update(matches, contact_nodes, clock, taring)
                 if update is None:
                     break
                 outcome = update
+                moved = np.linalg.norm(self.positions[self.robot.feature_nodes] - matched_at,
+                                       axis=1).max(initial=0.0)
+                if moved <= self.settings.estimation.rematch_mm:
+                    break  # matching again would find the same points: the frame is done
         except SolverError:
             self.positions, self.tensions = saved
             self.linear = None
@@ -204,10 +209,11 @@ class ForceSensor:
         self.table_plane = result.table_plane
         return result
 
-    def _match(self, robot_points_mm: np.ndarray) -> FeatureMatches:
+    def _match(self, segmentation: Segmentation) -> FeatureMatches:
         positions, normals = self.feature_geometry()
-        return match_features(positions, normals, robot_points_mm, self.settings.vision,
-                              camera_mm=self.transform.translation_mm)
+        return match_features(positions, normals, segmentation.robot.points_mm,
+                              self.settings.vision, camera_mm=self.transform.translation_mm,
+                              robot_tree=segmentation.robot_tree)
 
     def _contact_nodes(self, vision: VisionResult) -> np.ndarray:
         """(c,) mesh nodes where the detected contacts act (none with a known contact): the

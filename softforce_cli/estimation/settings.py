@@ -38,6 +38,10 @@ class EstimationSettings:
                          frame and lets the configuration converge over the following frames;
                          two reach equilibrium within a frame when the load changes abruptly
                          between frames (one frame per state in a slow recording).
+    rematch_mm         : 0.1; the frame's next update (matching again at the updated shape)
+                         is skipped once an update has moved no feature point more than
+                         this: a tenth of the depth noise, so the matching would find the
+                         same points. In a steady state one update per frame then suffices.
     relinearize_mm     : the FE model is linearised again (K(x) assembled and factorised, the
                          internal forces at x: a Newton step) when an update has moved a node
                          more than this from the configuration of the last linearisation;
@@ -54,6 +58,7 @@ class EstimationSettings:
     force_model: str = "normal"
     contact_at: str = "node"
     updates_per_frame: int = 2
+    rematch_mm: float = 0.1
     relinearize_mm: float = 0.5
     track_radius_mm: float = 15.0
     min_matched: int = 6
@@ -67,8 +72,8 @@ class EstimationSettings:
         if self.contact_at not in CONTACT_AT:
             raise SensingError(f"estimation.contact_at {self.contact_at!r} unknown; use one of "
                                f"{', '.join(CONTACT_AT)}")
-        if self.relinearize_mm < 0:
-            raise SensingError("estimation.relinearize_mm must be >= 0")
+        if self.relinearize_mm < 0 or self.rematch_mm < 0:
+            raise SensingError("estimation.relinearize_mm and rematch_mm must be >= 0")
         if self.updates_per_frame < 1:
             raise SensingError("estimation.updates_per_frame must be at least 1")
 

@@ -70,7 +70,7 @@ def detect_contacts(
     none = DetectedContacts(np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros((0, 3)))
     if len(robot) == 0 or len(objects) == 0:
         return none
-    neighbours = cKDTree(robot).query_ball_point(
+    neighbours = segmentation.robot_tree.query_ball_point(
         objects, settings.contact_radius_mm, return_length=True
     )
     contact = neighbours > settings.contact_min_neighbours

@@ -59,6 +59,7 @@ def match_features(
     robot_points_mm: np.ndarray,
     settings: VisionSettings = VisionSettings(),
     camera_mm: np.ndarray | None = None,
+    robot_tree: cKDTree | None = None,
 ) -> FeatureMatches:
     """Algorithm 3 for features (p, 3) mm with unit outward normals (p, 3) against the robot
     cloud X_r (n, 3) mm -> FeatureMatches.
@@ -66,6 +67,7 @@ def match_features(
     camera_mm (3,), optional: the camera's position in the robot frame (robot_from_camera's
     translation). Features whose normal points away from it are hidden: the camera cannot see
     that side, and the normal line would meet the opposite face of the body instead.
+    robot_tree, optional: a cKDTree of robot_points_mm (Segmentation.robot_tree), reused.
     """
     features = np.asarray(feature_positions_mm, dtype=float).reshape(-1, 3)
     normals = np.asarray(normals, dtype=float).reshape(-1, 3)
@@ -75,7 +77,7 @@ def match_features(
     if camera_mm is not None:
         towards = np.einsum("ij,ij->i", np.asarray(camera_mm, dtype=float) - features, normals)
         visible = towards > 0
-    best, line = _nearest_to_lines(features, normals, visible, robot, settings)
+    best, line = _nearest_to_lines(features, normals, visible, robot, settings, robot_tree)
     near_line = visible & (best >= 0) & (line <= settings.match_line_mm)
     found = np.full((p, 3), np.nan)
     found[near_line] = robot[best[near_line]]
@@ -99,6 +101,7 @@ def _nearest_to_lines(
     active: np.ndarray,
     robot: np.ndarray,
     settings: VisionSettings,
+    robot_tree: cKDTree | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """For each active feature, the robot point nearest to its normal line among those within
     match_search_mm of the feature -> index (p,) int64 (-1: none) and distance (p,) mm (NaN).
@@ -120,7 +123,7 @@ def _nearest_to_lines(
     samples = features[index, None, :] + offsets[None, :, None] * normals[index, None, :]
     radius = float(np.hypot(settings.match_line_mm, step / 2))
     sample_pairs = cKDTree(samples.reshape(-1, 3)).sparse_distance_matrix(
-        cKDTree(robot), radius, output_type="ndarray"
+        cKDTree(robot) if robot_tree is None else robot_tree, radius, output_type="ndarray"
     )
     i = index[sample_pairs["i"] // len(offsets)]
     j = sample_pairs["j"].astype(np.int64)

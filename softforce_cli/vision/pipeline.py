@@ -113,7 +113,8 @@ def process_frame(
     clock.lap("contacts")
     matches = match_features(feature_positions_mm, feature_normals,
                              segmentation.robot.points_mm, settings,
-                             camera_mm=robot_from_camera.translation_mm)
+                             camera_mm=robot_from_camera.translation_mm,
+                             robot_tree=segmentation.robot_tree)
     clock.lap("matching")
     return VisionResult(cloud, segmentation, contacts, contact_features, matches, plane,
                         clock.timings())

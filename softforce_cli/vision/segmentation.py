@@ -10,6 +10,7 @@ isolated. A region is robot when its mean colour is close to the robot's colour.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -54,6 +55,12 @@ class Segmentation:
     objects: PointCloud
     regions: Regions
     robot_regions: np.ndarray
+
+    @cached_property
+    def robot_tree(self) -> cKDTree:
+        """A KD-tree of the robot points, built once for contact detection and every feature
+        matching of the frame."""
+        return cKDTree(self.robot.points_mm)
 
     @property
     def dropped_points(self) -> int:
