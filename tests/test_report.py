@@ -17,7 +17,7 @@ from softforce_cli.report.build import build_report
 from softforce_cli.report.export import available_tables, select_columns, table_text
 from softforce_cli.report.loading import ReportError, load_run
 from softforce_cli.report.overview import sense_overview
-from softforce_cli.report.reconstruction import sensed_shape
+from softforce_cli.report.reconstruction import frame_cable_inputs, sensed_shape
 from softforce_cli.report.truth import compare_run_with_truth
 from tests.cli_runner import assert_one_line_error, softforce
 from tests.report_fixtures import DIAGNOSIS, PROBES_TRUTH, diagnose_folder, sense_folder
@@ -101,14 +101,15 @@ def test_truth_statistics_match_a_direct_computation(sense_out):
 
 
 def test_rebuilt_shape_matches_the_recorded_actuation(sense_out, sample_robot):
-    """The shape under the sensed cable tensions (force control) against an independent
-    solve: the recording's own cable displacements (displacement control) of that frame."""
+    """The shape under the sensed cable tensions (force control: the fallback without the
+    recording) against an independent solve: the recording's own cable displacements
+    (displacement control) of that frame."""
     from softforce_cli.fem.statics import solve_equilibrium
 
     run = load_run(sense_out).sense
     frame = json.loads(PROBES_TRUTH.read_text())["frames"][1]
-    shape = sensed_shape(sample_robot, run.cable_tensions[1], np.zeros((0, 3)),
-                         np.zeros((0, 3)))
+    tensions = frame_cable_inputs(sample_robot, None, run.cable_tensions[1])
+    shape = sensed_shape(sample_robot, tensions, np.zeros((0, 3)), np.zeros((0, 3)))
     recorded = solve_equilibrium(sample_robot.fe_model,
                                  sample_robot.cable_inputs(np.array(frame["actuation"]["values"])))
     moved = np.linalg.norm(recorded.positions_mm - sample_robot.rest_nodes_mm, axis=1).max()
@@ -192,9 +193,9 @@ def test_missing_robot_and_unknown_column_are_one_line(sense_out, tmp_path):
     (moved / "sense.json").write_text(json.dumps(document))
     assert_one_line_error(softforce("report", moved), "--robot")
     assert not (moved / "report" / "report.html").exists()
-    assert_one_line_error(softforce("report", moved, "--format", "csv", "--columns",
-                                    "frame,speed"), "'speed'")
     assert_one_line_error(softforce("report", moved, "--columns", "frame"), "--format csv")
+    with pytest.raises(ReportError, match="no column 'speed'; its columns are frame,"):
+        select_columns(load_run(moved).sense.contacts, "contacts", ["frame", "speed"])
 
 
 def test_existing_report_is_not_overwritten_without_force(html_run, sense_out):

@@ -67,31 +67,30 @@ def _run(browser, *args):
 
 @pytest.fixture(scope="module")
 def probed(browser, page, tmp_path_factory):
-    """A copy of the page with PROBE, and what PROBE found when it loaded."""
-    path = tmp_path_factory.mktemp("browser") / "probed.html"
+    """A copy of the page with PROBE loaded once: what PROBE found (read from the DOM), the
+    screenshot, and the browser's log."""
+    folder = tmp_path_factory.mktemp("browser")
+    path, shot = folder / "probed.html", folder / "report.png"
     path.write_text(page.read_text().replace("<head>", "<head>" + PROBE, 1))
-    result = _run(browser, "--dump-dom", path.as_uri())
+    result = _run(browser, "--dump-dom", f"--screenshot={shot}", "--enable-logging=stderr",
+                  "--v=0", path.as_uri())
     title = re.search(r"<title>(.*?)</title>", result.stdout, re.S)
-    assert title is not None, result.stderr[-2000:]
-    return path, json.loads(html.unescape(title.group(1)))
+    assert title is not None and shot.is_file(), result.stderr[-2000:]
+    return json.loads(html.unescape(title.group(1))), shot, result.stderr
 
 
 def test_page_loads_without_errors_and_draws_every_figure(probed):
-    _, state = probed
+    state, _, log = probed
     assert state["errors"] == []
+    assert "Uncaught" not in log
     assert state["figures"] >= 6  # forces, contacts (3D), residual, features, timings, truth
     assert state["drawn"] >= state["figures"]  # each figure drew its SVG layer
     assert state["webgl"] >= 1  # the 3D view's WebGL canvas
 
 
-def test_screenshot_shows_the_figures(browser, probed, tmp_path):
+def test_screenshot_shows_the_figures(probed):
     """The probed copy (PROBE changes only the title, not the layout) photographed."""
-    path, state = probed
-    shot = tmp_path / "report.png"
-    result = _run(browser, "--enable-logging=stderr", "--v=0", f"--screenshot={shot}",
-                  path.as_uri())
-    assert shot.is_file(), result.stderr[-2000:]
-    assert "Uncaught" not in result.stderr
+    state, shot, _ = probed
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     shutil.copy(shot, ARTIFACTS / "report_screenshot.png")
     image = matplotlib.image.imread(shot)[:, :, :3]

@@ -17,7 +17,13 @@ from softforce_cli.report.loading import DiagnoseRun, ReportError, RunFolder, Se
 from softforce_cli.report.overview import STATUS_MEANINGS, Overview, sense_overview
 from softforce_cli.report.paths import PAGE_NAME
 from softforce_cli.report.scene import ContactScene, location_scene, sense_scene
-from softforce_cli.report.sources import ReportSources, robot_path, sense_truth
+from softforce_cli.report.sources import (
+    ReportSources,
+    recorded_actuation,
+    recording_path,
+    robot_path,
+    sense_truth,
+)
 from softforce_cli.report.truth import TruthReport
 
 Step = Callable[[str], None]
@@ -58,7 +64,8 @@ def build_report(folder: RunFolder, out_dir: Path, sources: ReportSources = Repo
         overview = sense_overview(run)
         step("rebuilding the robot's shape")
         robot = sense_robot(run, sources)
-        scene = _scene(run, robot, notes)
+        recording = recording_path(run, sources)
+        scene = _scene(run, robot, lambda frame: recorded_actuation(recording, frame), notes)
         sections += _sense_sections(run, overview, truth, notes)
         step("drawing the figures")
         sections += _figure_sections(sense_charts(run, truth), scene, out_dir, pngs, force)
@@ -82,12 +89,12 @@ def _load(path: Path) -> Robot:
                           "ROBOT.toml)") from error
 
 
-def _scene(run: SenseRun, robot: Robot | None, notes: list[str]) -> ContactScene | None:
+def _scene(run: SenseRun, robot: Robot | None, actuation, notes: list[str]) -> ContactScene | None:
     if robot is None:
         notes.append("sense.json names no robot: no 3D view (pass --robot ROBOT.toml)")
         return None
     try:
-        return sense_scene(run, robot)
+        return sense_scene(run, robot, actuation)
     except SolverError as error:
         notes.append(f"the sensed shape could not be rebuilt ({error}): no 3D view")
         return None

@@ -24,7 +24,12 @@ from softforce_cli.io.replay_writer import FrameResults, ReplayWriter
 from softforce_cli.model.mesh import vertex_normals
 from softforce_cli.model.robot import Robot
 from softforce_cli.report.loading import ReportError, SenseRun
-from softforce_cli.report.reconstruction import RobotShape, rest_shape, sensed_shape
+from softforce_cli.report.reconstruction import (
+    RobotShape,
+    frame_cable_inputs,
+    rest_shape,
+    sensed_shape,
+)
 from softforce_cli.report.scene import LONGEST_ARROW_MM
 from softforce_cli.vision.pipeline import process_frame
 
@@ -74,7 +79,8 @@ def write_replay(run: SenseRun, inputs: ReplayInputs, path: Path, force: bool = 
                 nodes = shape.positions_mm[: robot.mesh.node_count]
                 colour = learned_robot_colour(frame, transform, nodes,
                                               robot.mesh.surface_nodes, settings.vision)
-            shape, warm = _frame_shape(run, robot, index, shape, warm)
+            actuation = None if frame.actuation is None else frame.actuation.values
+            shape, warm = _frame_shape(run, robot, index, actuation, shape, warm)
             vision = _vision(frame, transform, robot, shape, colour, settings, table)
             table = vision.table_plane
             rows = run.contacts["frame"] == index
@@ -93,8 +99,8 @@ def write_replay(run: SenseRun, inputs: ReplayInputs, path: Path, force: bool = 
     return ReplayResult(Path(path), written)
 
 
-def _frame_shape(run: SenseRun, robot: Robot, index: int, previous: RobotShape,
-                 warm: bool) -> tuple[RobotShape, bool]:
+def _frame_shape(run: SenseRun, robot: Robot, index: int, actuation: np.ndarray | None,
+                 previous: RobotShape, warm: bool) -> tuple[RobotShape, bool]:
     """The frame's sensed shape, or the previous one when the frame has no tensions (not
     sensed, or skipped) or its loads cannot be solved; and whether the shape is sensed."""
     tensions = run.cable_tensions.get(index)
@@ -106,7 +112,8 @@ def _frame_shape(run: SenseRun, robot: Robot, index: int, previous: RobotShape,
     forces = np.column_stack([run.contacts[k][rows] for k in ("fx_n", "fy_n", "fz_n")])
     start = previous.positions_mm if warm else None
     try:
-        return sensed_shape(robot, tensions, points, forces, start_mm=start), True
+        inputs = frame_cable_inputs(robot, actuation, tensions)
+        return sensed_shape(robot, inputs, points, forces, start_mm=start), True
     except SolverError:
         return previous, warm
 

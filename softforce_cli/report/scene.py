@@ -2,13 +2,19 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from softforce_cli.model.robot import Robot
 from softforce_cli.report.loading import SenseRun
-from softforce_cli.report.reconstruction import RobotShape, rest_shape, sensed_shape
+from softforce_cli.report.reconstruction import (
+    RobotShape,
+    frame_cable_inputs,
+    rest_shape,
+    sensed_shape,
+)
 
 # The longest force arrow drawn, in mm: about a fifth of the Diamond's span, long enough to
 # read a direction, short enough not to hide the robot.
@@ -48,9 +54,11 @@ def shown_frame(run: SenseRun) -> int | None:
     return frames[int(np.argmax(totals))] if max(totals) > 0 else frames[-1]
 
 
-def sense_scene(run: SenseRun, robot: Robot) -> ContactScene:
+def sense_scene(run: SenseRun, robot: Robot,
+                actuation: Callable[[int], np.ndarray | None]) -> ContactScene:
     """Every contact of every ok frame, on the robot as sensed in shown_frame (the rest shape
-    when sense.json kept no tensions)."""
+    when sense.json kept no tensions); actuation(frame) gives the frame's recorded cable
+    inputs, or None (reconstruction.frame_cable_inputs)."""
     contacts = run.contacts
     points = np.column_stack([contacts[k] for k in ("x_mm", "y_mm", "z_mm")]).reshape(-1, 3)
     forces = np.column_stack([contacts[k] for k in ("fx_n", "fy_n", "fz_n")]).reshape(-1, 3)
@@ -62,7 +70,8 @@ def sense_scene(run: SenseRun, robot: Robot) -> ContactScene:
         shape, title = rest_shape(robot), f"{robot.name} at rest, contacts of every frame"
     else:
         here = contacts["frame"] == frame
-        shape = sensed_shape(robot, run.cable_tensions[frame], points[here], forces[here])
+        inputs = frame_cable_inputs(robot, actuation(frame), run.cable_tensions[frame])
+        shape = sensed_shape(robot, inputs, points[here], forces[here])
         title = f"{robot.name} as sensed in frame {frame}, contacts of every frame"
     return ContactScene(title, shape, points, forces, labels, np.zeros(0, dtype=np.int64))
 

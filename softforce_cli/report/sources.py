@@ -6,6 +6,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
+from softforce_cli.io.mcap_reader import iter_frames
 from softforce_cli.report.loading import ReportError, SenseRun
 from softforce_cli.report.paths import resolve_input, truth_path
 from softforce_cli.report.truth import TruthReport, compare_run_with_truth
@@ -34,9 +37,30 @@ def robot_path(run: SenseRun, sources: ReportSources) -> Path | None:
     return path
 
 
+def recording_path(run: SenseRun, sources: ReportSources) -> Path | None:
+    """The run's recording (or --recording), None when it is not found."""
+    if sources.recording is not None:
+        return Path(sources.recording)
+    return resolve_input(run.input_path("recording"), run.folder)
+
+
+def recorded_actuation(recording: Path | None, index: int) -> np.ndarray | None:
+    """(a,) the /robot/actuation values of frame `index` of the recording (the last one sent
+    before it, as sense holds them); None without a recording or an actuation."""
+    if recording is None:
+        return None
+    values = None
+    for number, frame in enumerate(iter_frames(recording)):
+        if frame.actuation is not None:
+            values = np.asarray(frame.actuation.values, dtype=float)
+        if number == index:
+            break
+    return values
+
+
 def truth_file(run: SenseRun, sources: ReportSources) -> Path | None:
     """`<recording>.truth.json` beside the run's recording (or --recording), if it exists."""
-    recording = sources.recording or resolve_input(run.input_path("recording"), run.folder)
+    recording = recording_path(run, sources)
     if recording is None:
         return None
     path = truth_path(Path(recording))
