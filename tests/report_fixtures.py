@@ -20,12 +20,16 @@ PROBES_TRUTH = ROOT / "sample_data" / "recordings" / "probes.truth.json"
 ARTIFACTS = ROOT / "out" / "test_artifacts"
 
 # A diagnosis as `softforce diagnose` writes it (DESIGN.md section 6): a verdict, the noise
-# floor, two ranked effects with their parameters and held-out residuals, and a location.
+# floor, two ranked effects with their parameters and held-out residuals, and a location; plus
+# fields beyond the contract that diagnose also writes (format, selected, target, evidence).
 DIAGNOSIS = {
+    "format": "softforce.diagnosis",
+    "version": 1,
     "verdict": "cable_slack",
+    "selected": ["cable_slack (north)"],
     "noise_floor_mm": 0.8,
     "effects": [
-        {"name": "cable_slack",
+        {"name": "cable_slack", "target": "north",
          "parameters": {"slack_north_mm": {"value": 2.1, "ci95": [1.8, 2.4], "unit": "mm"}},
          "heldout_rms_before_mm": 3.2, "heldout_rms_after_mm": 0.9,
          "evidence": "residual grows with the north cable's pull, zero below 2 mm"},
@@ -34,7 +38,10 @@ DIAGNOSIS = {
          "heldout_rms_before_mm": 3.2, "heldout_rms_after_mm": 3.0,
          "evidence": {"correlation": 0.12}},
     ],
-    "location": {"regions": ["north"], "cables": ["north"], "nodes": [3, 5, 8]},
+    "indistinguishable_groups": [],
+    "location": {"regions": ["north"], "cables": ["north"], "nodes": [3, 5, 8],
+                 "region_rms_mm": {"north": 2.9}},
+    "evidence": {"frames": 18, "states": 6},
 }
 
 

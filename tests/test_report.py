@@ -166,6 +166,7 @@ def test_diagnose_folder_report(tmp_path):
     console.print(terminal.diagnosis_summary(folder.diagnose.diagnosis))
     text = console.export_text()
     assert "verdict: cable_slack (at north, north)" in text
+    assert "cable_slack (north)" in page and "region_rms_mm" in page
     assert "72 %" in text  # 1 - 0.9 / 3.2 of the held-out residual removed
     effects = available_tables(folder, None)["effects"]
     assert list(effects["value"]) == [2.1, 1.05]
@@ -178,6 +179,12 @@ def test_bad_diagnosis_field_is_one_line(tmp_path):
     (folder / "diagnosis.json").write_text(json.dumps(broken))
     with pytest.raises(ReportError, match="noise_floor_mm"):
         load_run(folder)
+    (folder / "diagnosis.json").write_text(json.dumps({**DIAGNOSIS, "effects": [{"name": 3}]}))
+    with pytest.raises(ReportError, match=r"effects\[0\]: the field 'parameters'"):
+        load_run(folder)
+    # diagnose writes null for a number that is not finite: read as NaN, not refused
+    (folder / "diagnosis.json").write_text(json.dumps({**DIAGNOSIS, "noise_floor_mm": None}))
+    assert np.isnan(load_run(folder).diagnose.diagnosis.noise_floor_mm)
 
 
 def test_neither_sense_nor_diagnose_folder_is_one_line(tmp_path):

@@ -157,8 +157,10 @@ def _diagnose_sections(run: DiagnoseRun, sources: ReportSources, out_dir: Path,
             ("regions", ", ".join(map(str, diagnosis.location.regions)) or "none"),
             ("cables", ", ".join(map(str, diagnosis.location.cables)) or "none"),
             ("nodes", len(diagnosis.location.nodes))]
+    rows += [(f"location: {key}", json.dumps(value))
+             for key, value in diagnosis.location.extra.items()]
     rows += [(key, json.dumps(value)) for key, value in diagnosis.extra.items()]
-    effects = [(e.name, f"{e.heldout_rms_before_mm:.3f}", f"{e.heldout_rms_after_mm:.3f}",
+    effects = [(e.label, f"{e.heldout_rms_before_mm:.3f}", f"{e.heldout_rms_after_mm:.3f}",
                 f"{100 * e.improvement:.0f} %",
                 "; ".join(f"{p.name} = {p.value:.4g} {p.unit} [{p.ci95[0]:.4g}, {p.ci95[1]:.4g}]"
                           for p in e.parameters),

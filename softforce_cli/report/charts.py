@@ -108,11 +108,12 @@ def diagnose_charts(diagnosis: Diagnosis) -> list[Chart]:
     """Held-out residual before and after each ranked effect, against the noise floor."""
     if not diagnosis.effects:
         return []
-    names = np.array([e.name for e in diagnosis.effects])
+    names = np.array([e.label for e in diagnosis.effects])
     before = np.array([e.heldout_rms_before_mm for e in diagnosis.effects])
     after = np.array([e.heldout_rms_after_mm for e in diagnosis.effects])
     return [Chart("effects", "Held-out residual before and after each effect", "effect",
                   "held-out residual RMS (mm)",
                   (Trace("before", names, before, kind="bar"),
                    Trace("after", names, after, kind="bar")),
-                  reference=(diagnosis.noise_floor_mm, "noise floor"))]
+                  reference=(diagnosis.noise_floor_mm, "noise floor")
+                  if np.isfinite(diagnosis.noise_floor_mm) else None)]

@@ -5,15 +5,20 @@
                   "heldout_rms_before_mm", "heldout_rms_after_mm", "evidence"}, ...],
      "location": {"regions": [...], "cables": [...], "nodes": [...]}}
 
-Fields beyond these are kept in Diagnosis.extra and shown as they are.
+Fields beyond these are kept in Diagnosis.extra and shown as they are; an effect's optional
+"target" (the cable or region it was fitted on) is kept. A number written as null (diagnose
+writes null for a value that is not finite) reads as NaN.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+LOCATION_KEYS = ("regions", "cables", "nodes")
 
 
 @dataclass(frozen=True)
@@ -35,21 +40,29 @@ class Effect:
     heldout_rms_before_mm: float
     heldout_rms_after_mm: float
     evidence: Any
+    target: str | None = None
+
+    @property
+    def label(self) -> str:
+        """"cable_slack (north)", or the name alone without a target."""
+        return self.name if not self.target else f"{self.name} ({self.target})"
 
     @property
     def improvement(self) -> float:
-        """Fraction of the held-out RMS the effect removes (0: none, 1: all)."""
+        """Fraction of the held-out RMS the effect removes (0: none, 1: all; NaN unknown)."""
         before = self.heldout_rms_before_mm
-        return 1.0 - self.heldout_rms_after_mm / before if before > 0 else 0.0
+        return 1.0 - self.heldout_rms_after_mm / before if before > 0 else math.nan
 
 
 @dataclass(frozen=True)
 class Location:
-    """Where the mismatch concentrates: region names, cable names, mesh node indices."""
+    """Where the mismatch concentrates: region names, cable names, mesh node indices, and
+    what else diagnose says about it (extra, e.g. an RMS per region)."""
 
     regions: tuple[Any, ...] = ()
     cables: tuple[Any, ...] = ()
     nodes: tuple[Any, ...] = ()
+    extra: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -84,8 +97,8 @@ def diagnosis_from_dict(data: Any, where: str = "diagnosis.json") -> Diagnosis:
         verdict=verdict,
         noise_floor_mm=_number(data, "noise_floor_mm", where),
         effects=effects,
-        location=Location(*(tuple(location.get(key) or ()) for key in
-                            ("regions", "cables", "nodes"))),
+        location=Location(*(tuple(location.get(key) or ()) for key in LOCATION_KEYS),
+                          extra={k: v for k, v in location.items() if k not in LOCATION_KEYS}),
         extra={k: v for k, v in data.items() if k not in known},
     )
 
@@ -109,6 +122,7 @@ def _effect(item: Any, where: str) -> Effect:
         heldout_rms_before_mm=_number(item, "heldout_rms_before_mm", where),
         heldout_rms_after_mm=_number(item, "heldout_rms_after_mm", where),
         evidence=item.get("evidence"),
+        target=None if item.get("target") is None else str(item["target"]),
     )
 
 
@@ -123,6 +137,8 @@ def _field(data: dict, key: str, where: str, kind: type) -> Any:
 
 def _number(data: dict, key: str, where: str) -> float:
     value = _field(data, key, where, object)
+    if value is None:
+        return math.nan
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ValueError(f"{where}: {key} must be a number, got {value!r}")
     return float(value)

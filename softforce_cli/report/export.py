@@ -44,11 +44,11 @@ def available_tables(folder: RunFolder, truth: TruthReport | None) -> dict[str, 
             for p in e.parameters or (None,):  # an effect with no parameter: one row
                 fitted = (math.nan, math.nan, math.nan, "") if p is None else (p.value, *p.ci95,
                                                                              p.unit)
-                rows.append((e.name, "" if p is None else p.name, *fitted,
+                rows.append((e.name, e.target or "", "" if p is None else p.name, *fitted,
                              e.heldout_rms_before_mm, e.heldout_rms_after_mm))
-        names = ("effect", "parameter", "value", "ci95_lo", "ci95_hi", "unit",
+        names = ("effect", "target", "parameter", "value", "ci95_lo", "ci95_hi", "unit",
                  "heldout_rms_before_mm", "heldout_rms_after_mm")
-        text = {"effect", "parameter", "unit"}
+        text = {"effect", "target", "parameter", "unit"}
         tables["effects"] = Table({
             name: np.array([r[i] for r in rows], dtype=str if name in text else float)
             for i, name in enumerate(names)})

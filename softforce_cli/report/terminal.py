@@ -73,7 +73,7 @@ def diagnosis_summary(diagnosis: Diagnosis) -> RenderableType:
         table.add_column(name, justify="left" if name in ("effect", "parameters (95 % CI)")
                          else "right")
     for e in diagnosis.effects:
-        table.add_row(e.name, f"{e.heldout_rms_before_mm:.3f}", f"{e.heldout_rms_after_mm:.3f}",
+        table.add_row(e.label, f"{e.heldout_rms_before_mm:.3f}", f"{e.heldout_rms_after_mm:.3f}",
                       f"{100 * e.improvement:.0f} %",
                       "; ".join(f"{p.name} {p.value:.4g} {p.unit} [{p.ci95[0]:.4g}, "
                                 f"{p.ci95[1]:.4g}]" for p in e.parameters))
