@@ -54,7 +54,7 @@ def build_report(folder: RunFolder, out_dir: Path, sources: ReportSources = Repo
     check_writable(out_dir / PAGE_NAME, force)
     sections: list[page.Section] = []
     pngs: list[Path] = []
-    notes = list(folder.notes)
+    notes: list[str] = []
     overview = truth = None
     if folder.sense is not None:
         run = folder.sense

@@ -13,7 +13,7 @@ from __future__ import annotations
 import csv
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -106,7 +106,6 @@ class RunFolder:
     folder: Path
     sense: SenseRun | None = None
     diagnose: DiagnoseRun | None = None
-    notes: tuple[str, ...] = field(default=())
 
 
 def load_run(folder: Path, report_folder_name: str = "report") -> RunFolder:
