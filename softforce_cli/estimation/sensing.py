@@ -77,7 +77,8 @@ class ForceSensor:
     tracks.
 
     robot_from_camera maps camera points to robot points (calibration); start_actuation (a,)
-    the calibrated cable inputs, in each cable's control units.
+    the calibrated cable inputs, in each cable's control units. relinearizations counts the
+    linearisations made so far (what a frame costs most; benchmarks report it).
     """
 
     def __init__(
