@@ -102,6 +102,10 @@ def test_missing_recording_and_settings_fail_with_one_line(probes_run, tmp_path)
     unknown = softforce("sense", PROBES, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
                         "-o", tmp_path / "out", "--settings", settings)
     assert_one_line_error(unknown, "'voxel'")
+    settings.write_text("[estimation]\nrelinearize_mm = -0.5\n")
+    negative = softforce("sense", PROBES, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
+                         "-o", tmp_path / "out", "--settings", settings)
+    assert_one_line_error(negative, "relinearize_mm")
 
 
 def test_recording_without_actuation_is_refused_when_the_cables_need_it(tmp_path):
