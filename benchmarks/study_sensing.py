@@ -92,13 +92,16 @@ def probe_points() -> list[tuple[float, float, float]]:
     return points
 
 
-def probes_scenario(width: int, height: int) -> str:
+def probes_scenario(width: int, height: int, locations: slice = slice(None)) -> str:
+    """Probes at the probe_points() picked by `locations` (all 12 by default), each held
+    HOLD_FRAMES frames and followed by an unloaded frame; a second probe joins every third."""
     rng = np.random.default_rng(5)
     points = probe_points()
+    forces = [round(float(rng.uniform(0.12, 0.3)), 3) for _ in points]
     actuation = "[5.0, 0.0, 5.0, 0.0]"
     frames = f"\n[[frame]]\nactuation = {actuation}\nrepeat = {HOLD_FRAMES}\n"
-    for i, point in enumerate(points):
-        force = round(float(rng.uniform(0.12, 0.3)), 3)
+    for i in range(len(points))[locations]:
+        point, force = points[i], forces[i]
         frames += (f"\n[[frame]]\nactuation = {actuation}\nrepeat = {HOLD_FRAMES}\n"
                    f'load = [{{ kind = "probe", point_mm = {list(point)}, force_n = {force} }}]\n')
         frames += f"\n[[frame]]\nactuation = {actuation}\nrepeat = 1\n"
@@ -181,13 +184,27 @@ def table_iii(robot_file: Path, pose: Path, width: int, height: int) -> dict:
             "fps": document["summary"]["frames_per_s"]}
 
 
-def probes_study(robot_file: Path, pose: Path, width: int, height: int, name: str,
-                 **options) -> dict:
-    probes = recording(f"probes_{width}", probes_scenario(width, height))
+def probes_study(robot_file: Path, pose: Path | None, width: int, height: int, name: str,
+                 locations: slice = slice(None), **options) -> dict:
+    """Sense the probes recording (simulated once per choice of locations) and compare with
+    its truth; pose None takes the truth's camera pose (truth_pose)."""
+    suffix = "" if locations == slice(None) else f"_{locations.start}-{locations.step}"
+    probes = recording(f"probes_{width}{suffix}", probes_scenario(width, height, locations))
+    pose = truth_pose(probes) if pose is None else pose
+    name = f"{name}{suffix}"
     document = sense(probes, robot_file, pose, name, tare_frames=HOLD_FRAMES, **options)
     comparison = compare_with_truth(document, read_truth(probes.with_suffix(".truth.json")))
     return {**comparison.summary(), "fps": document["summary"]["frames_per_s"],
             "median_total_ms": document["summary"]["median_total_ms"]}
+
+
+def truth_pose(path: Path) -> Path:
+    """The camera pose of a simulated recording's truth as a pose-only calibration."""
+    truth = read_truth(path.with_suffix(".truth.json"))
+    pose = OUT / f"pose_{path.stem}.json"
+    pose.write_text(json.dumps({"rotation": truth["camera"]["rotation"],
+                                "translation_mm": truth["camera"]["translation_mm"]}))
+    return pose
 
 
 def main() -> None:
@@ -195,14 +212,32 @@ def main() -> None:
     parser.add_argument("--robot", type=Path, default=ESTIMATOR, help="estimator robot file")
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--height", type=int, default=480)
+    parser.add_argument("--probes-only", action="store_true",
+                        help="a reduced study: the probes alone, with the truth's camera pose "
+                             "(no marker or material calibration)")
+    parser.add_argument("--every", type=int, default=1,
+                        help="with --probes-only: every N-th of the 12 probe locations")
+    parser.add_argument("--first", type=int, default=0,
+                        help="with --probes-only: the first location taken")
     args = parser.parse_args()
+    name = args.robot.stem if args.robot.stem != "diamond" else args.robot.parent.name
+    if args.probes_only:
+        locations = slice(args.first, None, args.every)
+        results = {"robot": str(args.robot), "resolution": [args.width, args.height],
+                   "locations": [probe_points()[i] for i in range(12)[locations]],
+                   "probes": probes_study(args.robot, None, args.width, args.height,
+                                          f"probes_{name}", locations)}
+        print(json.dumps(results, indent=1))
+        (OUT / f"results_probes_{name}_{args.first}-{args.every}.json").write_text(
+            json.dumps(results, indent=1))
+        return
     pose = pose_calibration(args.robot)
     results = {"robot": str(args.robot), "resolution": [args.width, args.height],
                "table_iii": table_iii(args.robot, pose, args.width, args.height),
                "probes": probes_study(args.robot, pose, args.width, args.height,
-                                      f"probes_{args.robot.parent.name}")}
+                                      f"probes_{name}")}
     print(json.dumps(results, indent=1))
-    (OUT / f"results_{args.robot.parent.name}.json").write_text(json.dumps(results, indent=1))
+    (OUT / f"results_{name}.json").write_text(json.dumps(results, indent=1))
 
 
 if __name__ == "__main__":
