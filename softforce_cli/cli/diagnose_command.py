@@ -11,7 +11,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from softforce_cli.cli.common import ForceOption, stderr, stdout
-from softforce_cli.cli.interrupt import deferred_interrupt
+from softforce_cli.cli.interrupt import deferred_interrupt, signal_name
 
 
 def diagnose(
@@ -24,13 +24,19 @@ def diagnose(
     output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")] = ...,
     frames: Annotated[str | None, typer.Option(
         "--frames", help="Use frames START:STOP of each recording.")] = None,
+    cache: Annotated[Path | None, typer.Option(
+        "--cache", help="Folder of cached FE solves (default ~/.cache/softforce/diagnose).",
+        file_okay=False)] = None,
+    no_cache: Annotated[bool, typer.Option(
+        "--no-cache", help="Solve every state afresh and keep nothing.")] = False,
     force: ForceOption = False,
 ) -> None:
     """Locate the sim-vs-real mismatch, name the missing physics, fit it, show the gain."""
-    from softforce_cli.diagnosis.run import DiagnoseInputs, run_diagnosis
+    from softforce_cli.diagnosis.run import DiagnoseInputs, default_cache, run_diagnosis
 
-    inputs = DiagnoseInputs(tuple(recordings), robot, calibration, output, frames, force)
-    columns = (TextColumn("{task.description:>16}"), BarColumn(), MofNCompleteColumn(),
+    folder = None if no_cache else (cache or default_cache())
+    inputs = DiagnoseInputs(tuple(recordings), robot, calibration, output, frames, force, folder)
+    columns = (TextColumn("{task.description:>14}"), BarColumn(), MofNCompleteColumn(),
                TimeElapsedColumn())
     with deferred_interrupt() as stop, Progress(*columns, console=stderr) as progress:
         tasks: dict[str, int] = {}
@@ -41,23 +47,38 @@ def diagnose(
             progress.update(tasks[name], completed=done, total=total)
 
         diagnosis = run_diagnosis(inputs, stage, lambda: stop.requested)
+    if diagnosis.interrupted:
+        stderr.print(f"[yellow]interrupted ({signal_name()}) during {diagnosis.stage}:[/] "
+                     f"what was done is in {output}/diagnosis.json (\"interrupted\": true)")
+        raise typer.Exit(stop.exit_code)
     _summary(diagnosis)
     stderr.print(f"wrote {output}/ (diagnosis.json, robot.fitted.toml, residual_map.png, "
                  "signature.png)")
 
 
 def _summary(diagnosis) -> None:
-    table = Table(title=f"verdict: {diagnosis.verdict}   noise floor "
-                        f"{diagnosis.noise_floor_mm:.2f} mm", title_justify="left")
-    for name in ("effect", "target", "parameters", "held-out before (mm)",
-                 "held-out after (mm)", "accepted"):
+    from softforce_cli.diagnosis.report import effect_entry, summary_lines
+
+    floor = diagnosis.noise_floor_mm
+    table = Table(title=f"verdict: [bold]{diagnosis.verdict}[/]   noise floor {floor:.2f} mm",
+                  title_justify="left")
+    for name in ("effect", "parameters", "held-out before (mm)", "after (mm)", "mode",
+                 "accepted"):
         table.add_column(name)
-    for c in diagnosis.ranked[:6]:
-        h = c.fit.hypothesis
-        values = ", ".join(f"{n}={v:.3g}" for n, v in zip(h.free, c.fit.values, strict=True))
-        table.add_row(h.name, h.target or "", values, f"{c.heldout.rms_before_mm:.3f}",
-                      f"{c.heldout.rms_after_mm:.3f}", "yes" if c.accepted else "no")
+    rows = list(diagnosis.selected) + [f for f in diagnosis.finals
+                                       if f not in diagnosis.selected]
+    rows += [s for s in diagnosis.screened[:6] if s.key not in {f.screened.key for f in rows}]
+    for item in rows[:8]:
+        entry = effect_entry(item, floor, item in diagnosis.selected)
+        values = ", ".join(f"{k}={v['value']:.3g}" for k, v in entry["parameters"].items())
+        accepted = entry["evidence"]["accepted"]
+        table.add_row(entry["label"], values, f"{entry['heldout_rms_before_mm']:.3f}",
+                      f"{entry['heldout_rms_after_mm']:.3f}",
+                      "relative" if "relative" in entry["evidence"]["mode"] else "absolute",
+                      "screened" if accepted is None else ("yes" if accepted else "no"))
     stdout.print(table)
     where = diagnosis.location
     stdout.print(f"location: regions {', '.join(where['regions']) or '-'}; "
                  f"cables {', '.join(where['cables']) or '-'}")
+    for line in summary_lines(diagnosis):
+        stdout.print(line)

@@ -8,28 +8,34 @@ from pathlib import Path
 import numpy as np
 
 from softforce_cli.diagnosis.pipeline import Diagnosis, node_systematic_mm
+from softforce_cli.diagnosis.residuals import Field
 from softforce_cli.io.atomic import atomic_path
-from softforce_cli.model.robot import Robot
 
 
-def save_residual_map(robot: Robot, diagnosis: Diagnosis, path: Path, force: bool) -> None:
-    """Mean residual per surface node (colour, mm) on the rest shape, nominal and final."""
+def save_residual_map(diagnosis: Diagnosis, path: Path, force: bool) -> None:
+    """Mean residual per surface node over all frames (colour, mm) on the rest shape: the
+    nominal model and the model with the selected effects."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    nodes = robot.mesh.nodes_mm[robot.mesh.surface_nodes]
-    before = node_systematic_mm(diagnosis.nominal)
-    after = node_systematic_mm(diagnosis.final)
-    limit = max(float(np.abs(before).max()), 1e-3)
+    mesh = diagnosis.robot.mesh
+    nodes = mesh.nodes_mm
+    before, seen = node_systematic_mm(diagnosis.nominal, mesh.node_count)
+    after, seen_after = node_systematic_mm(diagnosis.final_field, mesh.node_count)
+    limit = max(float(np.abs(before[seen > 0]).max(initial=0.0)), 1e-3)
     figure = plt.figure(figsize=(10, 4.5))
-    fitted = ", ".join(c.label for c in diagnosis.selected) or "no effect"
-    for i, (values, title) in enumerate(((before, "nominal model"),
-                                         (after, f"with {fitted}"))):
+    fitted = ", ".join(f.candidate.label for f in diagnosis.selected) or "no effect"
+    for i, (values, weight, title) in enumerate(((before, seen, "nominal model"),
+                                                 (after, seen_after, f"with {fitted}"))):
         axis = figure.add_subplot(1, 2, i + 1, projection="3d")
-        art = axis.scatter(*nodes.T, c=values, cmap="coolwarm", vmin=-limit, vmax=limit, s=4)
-        axis.set_title(f"{title}: RMS {np.sqrt(np.mean(values**2)):.2f} mm")
+        shown = weight > 0
+        art = axis.scatter(*nodes[shown].T, c=values[shown], cmap="coolwarm", vmin=-limit,
+                           vmax=limit, s=4)
+        rms = np.sqrt(np.average(values[shown] ** 2, weights=weight[shown])) if shown.any() \
+            else 0.0
+        axis.set_title(f"{title}: mean residual RMS {rms:.2f} mm", fontsize=9)
         axis.set_xlabel("x (mm)")
         axis.set_ylabel("y (mm)")
         axis.set_zlabel("z (mm)")
@@ -39,9 +45,16 @@ def save_residual_map(robot: Robot, diagnosis: Diagnosis, path: Path, force: boo
     plt.close(figure)
 
 
+def _per_frame_rms(field: Field, frames: int) -> np.ndarray:
+    weight = np.bincount(field.frame, weights=field.weight, minlength=frames)
+    squares = np.bincount(field.frame, weights=field.weight * field.mean_mm**2,
+                          minlength=frames)
+    return np.sqrt(np.divide(squares, weight, out=np.zeros(frames), where=weight > 0))
+
+
 def save_signature_plot(diagnosis: Diagnosis, path: Path, force: bool) -> None:
-    """Per-frame RMS residual (nominal and final) against actuation amplitude, loading
-    direction, hold time and mean depth."""
+    """Per-frame RMS residual (nominal and fitted) against actuation amplitude, loading
+    direction, hold time and mean depth, with the noise floor."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -50,21 +63,17 @@ def save_signature_plot(diagnosis: Diagnosis, path: Path, force: bool) -> None:
     frames = diagnosis.observations.frames
     amplitude = np.array([np.abs(f.actuation).sum() for f in frames])
     states = diagnosis.states
-    direction = states.direction[states.of_frame].sum(axis=1)
+    loading = states.loading[states.of_frame].sum(axis=1)
     hold = states.hold_s[states.of_frame]
     depth = np.array([f.depth_mm.mean() for f in frames])
-
-    def per_frame(fields):
-        return np.sqrt((fields.count * fields.mean_mm**2).sum(axis=1)
-                       / np.maximum(fields.count.sum(axis=1), 1))
-
-    before, after = per_frame(diagnosis.nominal), per_frame(diagnosis.final)
+    before = _per_frame_rms(diagnosis.nominal, len(frames))
+    after = _per_frame_rms(diagnosis.final_field, len(frames))
     figure, axes = plt.subplots(1, 4, figsize=(14, 3.5), sharey=True)
-    for axis, x, label in zip(axes, (amplitude, direction, hold, depth),
+    for axis, x, label in zip(axes, (amplitude, loading, hold, depth),
                               ("actuation sum (mm)", "loading direction (sum of signs)",
                                "hold time (s)", "mean depth (mm)"), strict=True):
-        axis.scatter(x, before, s=8, label="nominal")
-        axis.scatter(x, after, s=8, label="fitted")
+        axis.scatter(x, before, s=10, label="nominal")
+        axis.scatter(x, after, s=10, label="fitted")
         axis.axhline(diagnosis.noise_floor_mm, color="grey", lw=0.8, ls="--")
         axis.set_xlabel(label)
     axes[0].set_ylabel("frame RMS residual (mm)")

@@ -1,195 +1,213 @@
-"""Residual fields of a model with effects, and least squares over an effect's parameters.
+"""Least squares of one or two hypotheses' parameters on residual entries, and their held-out
+error by leaving trajectory segments out.
 
-Problem.fields(effects) predicts every state (FE solves warm-started from the nominal ones),
-moves the predicted surface as the camera effects would show it, and measures each frame's
-observed points against it: (t, s) mean normal residuals per frame and surface node, with the
-point counts as weights. fit() runs Gauss-Newton on an effect's few free parameters with
-secant sensitivities (one step per parameter, on every state), projected on the bounds, each
-step checked on the exact residuals.
+A Candidate is a tuple of hypotheses fitted together (one effect, or two in forward
+selection): its shift is the sum of theirs, its parameters theirs concatenated. The fit is
+bounded nonlinear least squares (scipy's trust-region reflective) of the point-weighted
+residual r - shift(p) over the entries of the training frames. Every evaluation is a few
+vector operations on the first-order model (diagnosis.hypotheses): no FE solve.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import least_squares
 
-from softforce_cli.calibration.rigid import RigidTransform
-from softforce_cli.diagnosis.hypotheses import Hypothesis, physics_model
-from softforce_cli.diagnosis.observations import Observations
-from softforce_cli.diagnosis.prediction import Predictor
-from softforce_cli.diagnosis.residuals import node_residuals, surface_normals
-from softforce_cli.diagnosis.states import States
-from softforce_cli.errors import SolverError
-from softforce_cli.model.effects import (
-    Effect,
-    FrameContext,
-    effective_actuation,
-    effects_of_kind,
-    observed_points_robot,
-)
-from softforce_cli.model.robot import Robot
+from softforce_cli.diagnosis.hypotheses import Hypothesis, Inputs
+from softforce_cli.diagnosis.residuals import Field
 
-GAUSS_NEWTON_STEPS = 3
+# Grid points of a one-parameter fit's start (over its screening range).
+GRID_POINTS = 17
 
 
-@dataclass(frozen=True, eq=False)
-class Fields:
-    """Residual fields: mean_mm (t, s) per frame and surface node, count (t, s) weights."""
+@dataclass(frozen=True)
+class Candidate:
+    """Hypotheses fitted together."""
 
-    mean_mm: np.ndarray
-    count: np.ndarray
-
-    def rms(self, frames: np.ndarray | None = None) -> float:
-        mean, count = (self.mean_mm, self.count) if frames is None else (
-            self.mean_mm[frames], self.count[frames])
-        return float(np.sqrt(np.sum(count * mean**2) / max(count.sum(), 1)))
-
-
-@dataclass
-class Problem:
-    """Everything a residual evaluation needs; caches nothing but the predictor's starts."""
-
-    robot: Robot
-    observations: Observations
-    states: States
-    contexts: list[FrameContext]
-    predictor: Predictor
-    robot_from_camera: RigidTransform
-    evaluations: int = field(default=0)
-    # predictions by their physics and actuation effects (sensor effects only move them)
-    _cache: dict[str, np.ndarray] = field(default_factory=dict)
+    hypotheses: tuple[Hypothesis, ...]
 
     @property
-    def surface_nodes(self) -> np.ndarray:
-        return self.robot.mesh.surface_nodes
+    def label(self) -> str:
+        return " + ".join(h.label for h in self.hypotheses)
 
-    def positions(self, effects: tuple[Effect, ...]) -> np.ndarray:
-        """(S, n_mesh, 3) predicted mesh nodes per state, as the camera shows them."""
-        key = repr(sorted((e.label, sorted(e.parameters.items()))
-                          for e in effects_of_kind(effects, "physics", "actuation")))
-        out = self._cache.get(key)
-        if out is None:
-            out = self._cache.setdefault(key, self._physics_positions(effects))
-        sensor = effects_of_kind(effects, "sensor")
-        if sensor:
-            shape = out.shape
-            out = observed_points_robot(out.reshape(-1, 3), sensor,
-                                        self.robot_from_camera).reshape(shape)
-        self.evaluations += 1
-        return out
+    @property
+    def sizes(self) -> list[int]:
+        return [len(h.free) for h in self.hypotheses]
 
-    def _physics_positions(self, effects: tuple[Effect, ...]) -> np.ndarray:
-        names = [spec.name for spec in self.robot.cable_specs]
-        actuation = effective_actuation(effects, self.contexts, names)  # (t, a)
-        first = np.unique(self.states.of_frame, return_index=True)[1]
-        per_state = actuation[first]
-        physics = effects_of_kind(effects, "physics")
-        creep = any(e.name == "viscoelastic_creep" for e in physics)
-        if creep:
-            out = np.stack([self.predictor.positions_with(
-                physics_model(self.robot, physics, hold), per_state, [s])[0]
-                for s, hold in enumerate(self.states.hold_s)])
-        else:
-            out = self.predictor.positions_with(physics_model(self.robot, physics), per_state)
-        return out
+    @property
+    def start(self) -> np.ndarray:
+        return np.concatenate([h.start for h in self.hypotheses])
 
-    def fields(self, effects: tuple[Effect, ...]) -> Fields:
-        positions = self.positions(effects)
-        faces = self.robot.mesh.surface_faces
-        normals = [surface_normals(p, faces) for p in positions]
-        frames = self.observations.frames
-        mean = np.zeros((len(frames), len(self.surface_nodes)))
-        count = np.zeros_like(mean)
-        for i, frame in enumerate(frames):
-            s = self.states.of_frame[i]
-            field_ = node_residuals(frame.points_mm, positions[s], self.surface_nodes,
-                                    normals[s])
-            mean[i], count[i] = field_.mean_mm, field_.count
-        return Fields(mean, count)
+    @property
+    def lower(self) -> np.ndarray:
+        return np.concatenate([h.lower for h in self.hypotheses])
+
+    @property
+    def upper(self) -> np.ndarray:
+        return np.concatenate([h.upper for h in self.hypotheses])
+
+    def split(self, values: np.ndarray) -> list[np.ndarray]:
+        return np.split(np.asarray(values, dtype=float), np.cumsum(self.sizes)[:-1])
+
+    def effects(self, values: np.ndarray) -> tuple:
+        return tuple(h.effect(v) for h, v in zip(self.hypotheses, self.split(values),
+                                                 strict=True))
+
+    def shift(self, values: np.ndarray, inputs: Inputs) -> np.ndarray:
+        """(E,) the summed normal shift of every hypothesis at `values`."""
+        parts = self.split(values)
+        return sum(h.shift(v, inputs) for h, v in zip(self.hypotheses, parts, strict=True))
 
 
-@dataclass(frozen=True, eq=False)
-class Fit:
-    """A fitted hypothesis.
+def node_offsets(values: np.ndarray, field: Field, mask: np.ndarray) -> np.ndarray:
+    """Per entry, the point-weighted mean of `values` (E,) or (E, k) over the entries in
+    `mask` at the same node (the static baseline of that node); NaN where the node has no
+    entry in `mask`."""
+    nodes = int(field.node.max()) + 1 if len(field.node) else 0
+    w = np.where(mask, field.weight, 0.0)
+    total = np.bincount(field.node, weights=w, minlength=nodes)
+    flat = values.reshape(len(w), -1)
+    sums = np.stack([np.bincount(field.node, weights=w * c, minlength=nodes) for c in flat.T],
+                    axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        means = sums / total[:, None]
+    return means[field.node].reshape(values.shape)
 
-    values    : (k,) fitted free parameters.
-    fields    : the residual fields at values.
-    jacobian  : (k, t, s) d(mean residual)/d(parameter) at values (secant).
+
+def fit_values(candidate: Candidate, inputs: Inputs, field: Field, relative: bool,
+               mask: np.ndarray | None = None, start: np.ndarray | None = None) -> np.ndarray:
+    """(k,) parameters minimising sum w (r - shift(p) [- o])^2 over the entries of `field`
+    in `mask` (default all), `field` having the entries of inputs.field. relative: with a
+    free static offset o per node (the baseline the model's own discretisation leaves), so
+    only what changes across frames counts."""
+    mask = np.ones(len(field.mean_mm), dtype=bool) if mask is None else mask
+    root = np.sqrt(field.weight[mask])
+    lower, upper = candidate.lower, candidate.upper
+
+    def residual(values: np.ndarray) -> np.ndarray:
+        left = field.mean_mm - candidate.shift(values, inputs)
+        if relative:
+            left = left - node_offsets(left, field, mask)
+        return root * left[mask]
+
+    if start is not None:
+        x0 = np.clip(start, lower, upper)
+    elif len(lower) == 1:
+        # one parameter: the best of a grid first (one-sided effects start on a bound and
+        # may be non-smooth there: slack, play)
+        grid = np.linspace(lower[0], upper[0], GRID_POINTS)
+        costs = [float(np.sum(residual(np.array([v])) ** 2)) for v in grid]
+        x0 = grid[[int(np.argmin(costs))]]
+    else:
+        # off the bounds, where a one-sided difference cannot leave them
+        x0 = np.clip(candidate.start, lower + 0.01 * (upper - lower),
+                     upper - 0.01 * (upper - lower))
+    result = least_squares(residual, x0, bounds=(lower, upper), x_scale="jac",
+                           diff_step=1e-4, max_nfev=60)
+    return result.x
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """Held-out residuals over every segment left out (mm, point-weighted RMS): before (the
+    nominal model) and after (the candidate refitted without the segment), and per segment
+    (K,) the mean squares before and after."""
+
+    rms_before_mm: float
+    rms_after_mm: float
+    before_ms: np.ndarray
+    after_ms: np.ndarray
+
+    @property
+    def gains(self) -> np.ndarray:
+        """(K,) per segment: mean-square improvement (mm^2)."""
+        return self.before_ms - self.after_ms
+
+    def gain_z(self, baseline: HeldOut | None = None) -> float:
+        """Mean segment gain (over `baseline`'s after, default the nominal model) divided by
+        its standard error, the segments as independent samples."""
+        gains = (self.before_ms if baseline is None else baseline.after_ms) - self.after_ms
+        k = len(gains)
+        spread = gains.std(ddof=1) / np.sqrt(k) if k > 1 else np.inf
+        if spread > 0:
+            return float(gains.mean() / spread)
+        return 0.0 if gains.mean() == 0 else float(np.inf * np.sign(gains.mean()))
+
+
+def held_out(candidate: Candidate, inputs: Inputs, field: Field, segments: np.ndarray,
+             values: np.ndarray, relative: bool, jacobian: np.ndarray | None = None,
+             nominal: Field | None = None) -> HeldOut:
+    """Leave each segment (frames, never random ones) out, refit on the rest from `values`,
+    and measure the segment; relative: the static offsets too are fitted on the rest only
+    (entries of nodes the rest never saw are left out).
+
+    field's entries are residuals at `values` when a jacobian (E, k) is given (the exact
+    residuals of a refitted candidate: the refit is then its linearisation there), else the
+    nominal residuals (the fold refits are full fits of the first-order model). `nominal`
+    (default `field`) gives the before figures.
     """
+    nominal = field if nominal is None else nominal
+    entry_segment = segments[field.frame]
+    nominal_segment = segments[nominal.frame]
+    before, after, weights = [], [], []
+    for k in np.unique(segments):
+        out = entry_segment == k
+        train = ~out
+        if jacobian is None:
+            folded = fit_values(candidate, inputs, field, relative, train, values)
+            left = field.mean_mm - candidate.shift(folded, inputs)
+        else:
+            J = jacobian
+            r = field.mean_mm
+            if relative:
+                J = J - node_offsets(J, field, train)
+                r = r - node_offsets(r, field, train)
+            usable = train & np.isfinite(r) & np.all(np.isfinite(J), axis=1)
+            step = _linear_step(Field(field.frame, field.node, r, field.weight), J, usable)
+            step = np.clip(values + step, candidate.lower, candidate.upper) - values
+            left = field.mean_mm - jacobian @ step
+        after.append(_segment_ms(left, field, train, out, relative))
+        was = nominal_segment == k
+        before.append(_segment_ms(nominal.mean_mm, nominal, ~was, was, relative))
+        weights.append(nominal.weight[was].sum())
+    weights = np.array(weights)
+    before, after = np.array(before), np.array(after)
+    return HeldOut(float(np.sqrt(weights @ before / weights.sum())),
+                   float(np.sqrt(weights @ after / weights.sum())), before, after)
 
-    hypothesis: Hypothesis
-    values: np.ndarray
-    fields: Fields
-    jacobian: np.ndarray
 
-    @property
-    def effect(self) -> Effect:
-        return self.hypothesis.effect(self.values)
+def _segment_ms(left: np.ndarray, field: Field, train: np.ndarray, out: np.ndarray,
+                relative: bool) -> float:
+    """Mean square (mm^2) over the `out` entries of residuals `left` (E,), less the static
+    offsets fitted on `train` when relative."""
+    if relative:
+        left = left - node_offsets(left, field, train)
+    keep = out & np.isfinite(left)
+    w = field.weight[keep]
+    return float(np.sum(w * left[keep] ** 2) / max(w.sum(), 1e-12))
 
 
-def secant_jacobian(problem: Problem, hypothesis: Hypothesis, values: np.ndarray,
-                    base: Fields, others: tuple[Effect, ...]) -> np.ndarray:
-    """(k, t, s): residual change per unit of each free parameter, by one secant step each
-    (towards the interior of the bounds)."""
+def _linear_step(field: Field, jacobian: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(k,) argmin sum w (r - J d)^2 over the entries in mask."""
+    w = field.weight[mask]
+    J = jacobian[mask]
+    normal = (J * w[:, None]).T @ J
+    normal += 1e-12 * np.trace(normal) * np.eye(len(normal))
+    return np.linalg.solve(normal, (J * w[:, None]).T @ field.mean_mm[mask])
+
+
+def shift_jacobian(candidate: Candidate, inputs: Inputs, values: np.ndarray) -> np.ndarray:
+    """(E, k) d shift / d parameter at `values` (central differences of the first-order model,
+    scaled to each parameter's screening range)."""
+    span = candidate.upper - candidate.lower
     columns = []
-    for j, step in enumerate(hypothesis.step):
-        sign = 1.0 if values[j] + step <= hypothesis.upper[j] else -1.0
-        for _ in range(3):  # a step the solver cannot follow is quartered
-            trial = values.copy()
-            trial[j] += sign * step
-            try:
-                shifted = problem.fields((*others, hypothesis.effect(trial)))
-                break
-            except SolverError:
-                step /= 4
-        else:
-            raise SolverError(f"{hypothesis.label}: no equilibrium near the neutral model")
-        columns.append((shifted.mean_mm - base.mean_mm) / (sign * step))
-    return np.array(columns)
-
-
-def linear_step(mean: np.ndarray, weights: np.ndarray, jacobian: np.ndarray,
-                rows: np.ndarray | None = None, damping: float = 1e-9) -> np.ndarray:
-    """(k,) the weighted least-squares step minimising sum w (mean + J d)^2 over frame rows
-    (default all); mean, weights (t, s), jacobian (k, t, s)."""
-    if rows is not None:
-        mean, weights, jacobian = mean[rows], weights[rows], jacobian[:, rows]
-    k = len(jacobian)
-    flat = jacobian.reshape(k, -1)
-    w = weights.ravel()
-    normal = (flat * w) @ flat.T
-    normal += damping * np.trace(normal) / max(k, 1) * np.eye(k)
-    return -np.linalg.solve(normal, (flat * w) @ mean.ravel())
-
-
-def fit(problem: Problem, hypothesis: Hypothesis, others: tuple[Effect, ...] = (),
-        base: Fields | None = None) -> Fit:
-    """Gauss-Newton from the neutral values with secant sensitivities, each step kept only
-    when the exact weighted residual falls (else halved)."""
-    values = hypothesis.start.astype(float).copy()
-    current = base if base is not None else problem.fields((*others, hypothesis.effect(values)))
-    jacobian = secant_jacobian(problem, hypothesis, values, current, others)
-    for _ in range(GAUSS_NEWTON_STEPS):
-        step = linear_step(current.mean_mm, current.count, jacobian)
-        for _ in range(4):
-            trial = np.clip(values + step, hypothesis.lower, hypothesis.upper)
-            try:
-                candidate = problem.fields((*others, hypothesis.effect(trial)))
-            except SolverError:  # too far for Newton: a shorter step
-                step = step / 2
-                continue
-            if candidate.rms() < current.rms():
-                break
-            step = step / 2
-        else:
-            break
-        # Broyden's update keeps the secant model consistent with the step just taken
-        taken = trial - values
-        change = candidate.mean_mm - current.mean_mm
-        predicted = np.tensordot(taken, jacobian, axes=1)
-        jacobian = jacobian + np.einsum("k,ts->kts", taken / (taken @ taken), change - predicted)
-        values, current = trial, candidate
-        if np.all(np.abs(taken) < 0.02 * hypothesis.step):
-            break
-    return Fit(hypothesis, values, current, jacobian)
+    for j in range(len(values)):
+        step = 1e-4 * span[j]
+        up, down = values.copy(), values.copy()
+        up[j] = min(values[j] + step, candidate.upper[j])
+        down[j] = max(values[j] - step, candidate.lower[j])
+        columns.append((candidate.shift(up, inputs) - candidate.shift(down, inputs))
+                       / (up[j] - down[j]))
+    return np.stack(columns, axis=1)

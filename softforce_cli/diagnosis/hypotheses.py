@@ -1,55 +1,118 @@
-"""The candidate effects diagnosis fits, each a few free parameters of model.effects.
+"""The candidate effects diagnosis screens: each an effect of model.effects on one target,
+with its free parameters and how they move the predicted surface to first order.
 
-A Hypothesis is an effect of the library (model.effects.EFFECTS) on one target (a cable, a
-region, or none), with the parameters diagnosis frees, their starting (neutral) values, the
-finite step of their secant sensitivities and their bounds. Hypotheses of one effect with
-different targets (cable_slack on each cable) are fitted separately and the best kept: that
-is the effect's location.
+A Hypothesis maps its free parameters (k,) to the normal shift (E,) of the predicted surface
+at every residual entry (a frame and a surface node, diagnosis.residuals.Field), from the
+sensitivity columns of diagnosis.sensitivities:
+
+- gravity, stiffness_scale, regional_stiffness, material_nonlinearity, compliant_base:
+  linear in their parameters (compliant_base in compliance 1/k, which vanishes at the clamp);
+- viscoelastic_creep: the stiffness column times a (1 - exp(-hold / tau)) of each frame;
+- cable_slack, cable_friction: u_eff from the exact slack and play operators over the
+  recording's history (model.effects), and the body at u_eff interpolated from the solved
+  state nearest to it: x_k + J_k (u_eff - u_k) (J_k its cable columns). The states are a
+  library of exact equilibria along the recording's inputs, so a frame whose effective input
+  is another state's input is predicted exactly (a first-order model about the frame's own
+  state underestimates a 3 mm slack by 20%: the cable's response changes along the pull);
+- depth_bias, extrinsic_offset: exact, the predicted nodes moved as the camera would show them
+  (model.effects.observed_points_robot).
+
+Several targets of one effect (cable_slack on each cable) are separate hypotheses; the best
+one is the effect's location.
 """
 
 from __future__ import annotations
 
-import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from softforce_cli.fem.model import FEModel
-from softforce_cli.model.effects import EFFECTS, Effect, creep_factor
-from softforce_cli.model.regions import element_regions
+from softforce_cli.calibration.rigid import RigidTransform
+from softforce_cli.diagnosis.residuals import Field
+from softforce_cli.diagnosis.sensitivities import ColumnSet
+from softforce_cli.model.effects import (
+    EFFECTS,
+    Effect,
+    FrameContext,
+    effective_actuation,
+    make_effect,
+    observed_points_robot,
+)
 from softforce_cli.model.robot import Robot
 
-# Secant steps: large enough to be far above solver round-off and to reach a one-sided effect
-# (a slack cable, a contact), small against the bounds. Per parameter name.
-STEPS = {"scale": 0.1, "tilt_x_deg": 3.0, "tilt_y_deg": 3.0, "blend": 1.0, "slack_mm": 1.5,
-         "play_mm": 1.0, "relaxation": 0.15, "depth_bias.scale": 0.01}
-# Free parameters per effect (the others stay at their defaults): compliant_base's stiffness
-# and support_contact's height are fitted in their own units; creep's time constant is held
-# at a typical 2 s (a hold of a few seconds cannot resolve it from the amplitude).
-FREE = {
-    "gravity": ("scale", "tilt_x_deg", "tilt_y_deg"),
-    "stiffness_scale": ("scale",),
-    "regional_stiffness": ("scale",),
-    "material_nonlinearity": ("blend",),
-    "cable_slack": ("slack_mm",),
-    "cable_friction": ("play_mm",),
-    "viscoelastic_creep": ("relaxation",),
-    "depth_bias": ("scale",),
-    "extrinsic_offset": tuple(f"translation_{a}_mm" for a in "xyz")
-    + tuple(f"rotation_{a}_deg" for a in "xyz"),
+# Fitted parameters per effect and their bounds in the first-order screening: the spec's
+# bounds cut to where one tangent still describes the body (a modulus halved or doubled, a
+# tilt of 20 degrees); the nonlinear refit (diagnosis.refit) works within the spec's.
+# compliance_mm_per_n = 1 / compliant_base.stiffness_n_per_mm.
+FREE: dict[str, tuple[tuple[str, float, float], ...]] = {
+    "gravity": (("scale", 0.3, 2.0), ("tilt_x_deg", -20.0, 20.0), ("tilt_y_deg", -20.0, 20.0)),
+    "stiffness_scale": (("scale", 0.5, 2.0),),
+    "regional_stiffness": (("scale", 0.3, 3.0),),
+    "material_nonlinearity": (("blend", 0.0, 1.0),),
+    "cable_slack": (("slack_mm", 0.0, 20.0),),
+    "cable_friction": (("play_mm", 0.0, 10.0),),
+    "compliant_base": (("compliance_mm_per_n", 0.0, 1.0),),
+    "viscoelastic_creep": (("relaxation", 0.0, 0.9), ("time_constant_s", 0.05, 1000.0)),
+    "depth_bias": (("scale", -0.1, 0.1),),
+    "extrinsic_offset": tuple((f"translation_{a}_mm", -20.0, 20.0) for a in "xyz")
+    + tuple((f"rotation_{a}_deg", -5.0, 5.0) for a in "xyz"),
 }
-CREEP_TIME_CONSTANT_S = 2.0
+# Effects whose signature is mostly a static shape change: besides relative to a static
+# baseline per node (what every effect is screened against, so that the accurate model's
+# own static mismatch with the body is not taken for physics), they are screened on the
+# absolute residual too, where they must explain most of that mismatch to be accepted.
+ABSOLUTE = frozenset({"gravity", "stiffness_scale", "compliant_base", "depth_bias",
+                      "extrinsic_offset"})
+# Where creep's fit starts its time constant (s): the geometric middle of its bounds in the
+# holds of a typical recording (0.5-30 s).
+CREEP_START_S = 3.0
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """What the shift functions need, per residual entry and per state.
+
+    field      : the nominal residual entries (E of them).
+    state      : (E,) state of each entry's frame.
+    normals    : (E, 3) predicted unit normal at each entry's node.
+    positions  : (E, 3) predicted position of each entry's node (mm, robot frame).
+    columns    : (C, E) normal shift per unit of each sensitivity column at each entry.
+    column_set : the columns' names.
+    contexts   : per frame, model.effects.FrameContext (t of them).
+    cables     : the robot's cable names.
+    robot_from_camera : the calibration's transform.
+    library    : (S, n, 3) every state's predicted mesh nodes.
+    library_inputs : (S, a) every state's commanded inputs.
+    cable_columns  : (S, a, n, 3) every state's cable columns (mm per unit input).
+    """
+
+    field: Field
+    state: np.ndarray
+    normals: np.ndarray
+    positions: np.ndarray
+    columns: np.ndarray
+    column_set: ColumnSet
+    contexts: tuple[FrameContext, ...]
+    cables: tuple[str, ...]
+    robot_from_camera: RigidTransform
+    library: np.ndarray
+    library_inputs: np.ndarray
+    cable_columns: np.ndarray
+
+    def column(self, name: str) -> np.ndarray:
+        return self.columns[self.column_set.index(name)]
 
 
 @dataclass(frozen=True)
 class Hypothesis:
-    """One candidate: effect `name` on `target`, parameters `free` fitted from `start`."""
+    """Effect `name` on `target` (a cable, a region or None), free parameters `free` (k,)
+    fitted from `start` within [lower, upper]."""
 
     name: str
     target: str | None
     free: tuple[str, ...]
     start: np.ndarray
-    step: np.ndarray
     lower: np.ndarray
     upper: np.ndarray
 
@@ -62,74 +125,82 @@ class Hypothesis:
         return EFFECTS[self.name].kind
 
     def effect(self, values: np.ndarray) -> Effect:
-        """The model.effects Effect with the free parameters at values (k,)."""
-        spec = EFFECTS[self.name]
-        parameters = {p.name: (p.default if p.default is not None else p.neutral)
-                      for p in spec.parameters}
+        """The model.effects Effect at the free values (k,)."""
+        named = dict(zip(self.free, (float(v) for v in values), strict=True))
+        if "compliance_mm_per_n" in named:
+            compliance = named.pop("compliance_mm_per_n")
+            lowest = EFFECTS["compliant_base"].parameter("stiffness_n_per_mm").lower
+            named["stiffness_n_per_mm"] = (math.inf if compliance <= 0.0
+                                           else max(1.0 / compliance, lowest))
+        return make_effect(self.name, self.target, **_clipped(self.name, named))
+
+    def shift(self, values: np.ndarray, inputs: Inputs) -> np.ndarray:
+        """(E,) mm: how far the predicted surface moves along its normal at every entry."""
+        v = dict(zip(self.free, np.asarray(values, dtype=float), strict=True))
+        if self.name == "gravity":
+            return ((v["scale"] - 1.0) * inputs.column("gravity.scale")
+                    + v["tilt_x_deg"] * inputs.column("gravity.tilt_x_deg")
+                    + v["tilt_y_deg"] * inputs.column("gravity.tilt_y_deg"))
+        if self.name == "stiffness_scale":
+            return (v["scale"] - 1.0) * inputs.column("stiffness")
+        if self.name == "regional_stiffness":
+            return (v["scale"] - 1.0) * inputs.column(f"region.{self.target}")
+        if self.name == "material_nonlinearity":
+            return v["blend"] * inputs.column("blend")
+        if self.name == "compliant_base":
+            return v["compliance_mm_per_n"] * inputs.column("base_compliance")
         if self.name == "viscoelastic_creep":
-            parameters["time_constant_s"] = CREEP_TIME_CONSTANT_S
-        parameters.update({n: float(v) for n, v in zip(self.free, values, strict=True)})
-        return Effect(self.name, parameters, self.target)
+            hold = np.array([c.hold_s for c in inputs.contexts])[inputs.field.frame]
+            relaxed = 1.0 - np.exp(-hold / v["time_constant_s"])
+            return -v["relaxation"] * relaxed * inputs.column("stiffness")
+        if self.kind == "actuation":
+            return _interpolated_shift(effective_actuation(
+                (self.effect(values),), inputs.contexts, inputs.cables), inputs)
+        # sensor effects: where the miscalibrated camera shows the predicted nodes
+        moved = observed_points_robot(inputs.positions, (self.effect(values),),
+                                      inputs.robot_from_camera)
+        return np.einsum("ei,ei->e", moved - inputs.positions, inputs.normals)
 
 
-def hypotheses(robot: Robot) -> tuple[Hypothesis, ...]:
-    """Every candidate this diagnosis evaluates for `robot`."""
+def _interpolated_shift(effective: np.ndarray, inputs: Inputs) -> np.ndarray:
+    """(E,) normal shift of the body at the effective inputs (t, a) of every frame, from the
+    nearest solved state k: x_k + J_k (u_eff - u_k)."""
+    distance = np.abs(effective[:, None, :] - inputs.library_inputs[None]).sum(axis=2)
+    nearest = np.argmin(distance, axis=1)[inputs.field.frame]  # (E,)
+    node = inputs.field.node
+    delta = effective[inputs.field.frame] - inputs.library_inputs[nearest]  # (E, a)
+    moved = inputs.library[nearest, node] + np.einsum(
+        "ea,eai->ei", delta, inputs.cable_columns[nearest, :, node])
+    return np.einsum("ei,ei->e", moved - inputs.positions, inputs.normals)
+
+
+def _clipped(name: str, values: dict[str, float]) -> dict[str, float]:
+    """Values inside the spec's bounds (a fit may end on a screening bound)."""
+    spec = EFFECTS[name]
+    return {k: float(np.clip(v, spec.parameter(k).lower, spec.parameter(k).upper))
+            for k, v in values.items()}
+
+
+def hypotheses(robot: Robot, column_set: ColumnSet) -> tuple[Hypothesis, ...]:
+    """Every candidate diagnosis screens for `robot` (support_contact is not among them:
+    docs/diagnosis.md, limits)."""
+    regions = [c.removeprefix("region.") for c in column_set.names if c.startswith("region.")]
+    cables = [spec.name for spec in robot.cable_specs if spec.control == "displacement"]
     out = []
-    regions = [r for r in element_regions(robot) if r != "base"]
-    cables = [spec.name for spec in robot.cable_specs]
     for name, free in FREE.items():
-        spec = EFFECTS[name]
-        targets = {"cable": cables, "region": regions, None: [None]}[spec.target]
-        params = [spec.parameter(p) for p in free]
-        start = np.array([p.neutral for p in params])
-        step = np.array([STEPS.get(f"{name}.{p.name}", STEPS.get(p.name, 1.0)) for p in params])
-        lower = np.array([p.lower for p in params])
-        upper = np.array([p.upper for p in params])
+        targets = {"cable": cables, "region": regions, None: [None]}[EFFECTS[name].target]
+        start = np.array([_start(name, p) for p, _, _ in free])
+        lower = np.array([lo for _, lo, _ in free])
+        upper = np.array([hi for _, _, hi in free])
         for target in targets:
-            out.append(Hypothesis(name, target, free, start, step, lower, upper))
+            out.append(Hypothesis(name, target, tuple(p for p, _, _ in free), start, lower,
+                                  upper))
     return tuple(out)
 
 
-def physics_model(robot: Robot, effects: tuple[Effect, ...], hold_s: float = 0.0) -> FEModel:
-    """The robot's FE model with the physics effects among `effects` (the others ignored)."""
-    model = robot.fe_model
-    scale = np.ones(len(model.tets))
-    gravity = np.asarray(model.gravity_mm_s2, dtype=float)
-    material = model.material
-    regions = None
-    for effect in effects:
-        if effect.name == "stiffness_scale":
-            scale *= effect["scale"]
-        elif effect.name == "regional_stiffness":
-            regions = element_regions(robot) if regions is None else regions
-            scale[regions[effect.target]] *= effect["scale"]
-        elif effect.name == "gravity":
-            gravity = _gravity(gravity, effect)
-        elif effect.name == "material_nonlinearity":
-            material = _blended(material, effect["blend"])
-    scale *= creep_factor(effects, hold_s)
-    changes = {}
-    if not np.all(scale == 1.0):
-        changes["element_stiffness_scale"] = scale
-    if not np.array_equal(gravity, model.gravity_mm_s2):
-        changes["gravity_mm_s2"] = gravity
-    if material is not model.material:
-        changes["material"] = material
-    return dataclasses.replace(model, **changes) if changes else model
-
-
-def _gravity(gravity: np.ndarray, effect: Effect) -> np.ndarray:
-    base = gravity if np.any(gravity) else np.array([0.0, 0.0, -9810.0])
-    ax, ay = np.radians(effect["tilt_x_deg"]), np.radians(effect["tilt_y_deg"])
-    rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])
-    ry = np.array([[np.cos(ay), 0, np.sin(ay)], [0, 1, 0], [-np.sin(ay), 0, np.cos(ay)]])
-    return effect["scale"] * (ry @ rx @ base)
-
-
-def _blended(material, blend: float):
-    from softforce_cli.fem.blended_material import BlendedMaterial
-
-    if blend == 0.0:
-        return material
-    other = "neo-hookean" if material.law != "neo-hookean" else "corotational"
-    return BlendedMaterial(material, dataclasses.replace(material, law=other), blend)
+def _start(name: str, parameter: str) -> float:
+    if parameter == "compliance_mm_per_n":
+        return 0.0
+    if parameter == "time_constant_s":
+        return CREEP_START_S
+    return EFFECTS[name].parameter(parameter).neutral

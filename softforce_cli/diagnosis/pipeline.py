@@ -1,5 +1,7 @@
-"""The whole diagnosis: observations -> states -> nominal residuals -> every hypothesis fitted
-and validated -> forward selection of up to two effects -> verdict and location."""
+"""The whole diagnosis: observations -> states -> one solve and one tangent per state ->
+nominal residuals -> every hypothesis screened on the first-order model (fit and
+leave-one-segment-out) -> the best refitted on the exact model -> forward selection of up to
+two effects -> verdict, groups, location."""
 
 from __future__ import annotations
 
@@ -8,232 +10,320 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from softforce_cli.calibration.rigid import RigidTransform
-from softforce_cli.diagnosis.fitting import Fields, Fit, Problem, fit
-from softforce_cli.diagnosis.hypotheses import Hypothesis, hypotheses
-from softforce_cli.diagnosis.observations import Observations
-from softforce_cli.diagnosis.prediction import Predictor, mesh_correction
+from softforce_cli.diagnosis.basis import Basis, build_basis
+from softforce_cli.diagnosis.fitting import Candidate, HeldOut, fit_values, held_out
+from softforce_cli.diagnosis.hypotheses import ABSOLUTE, hypotheses
+from softforce_cli.diagnosis.observations import DiagnosisError, Observations
+from softforce_cli.diagnosis.refit import ExactModel, Refit, refit
+from softforce_cli.diagnosis.residuals import Field, measure
 from softforce_cli.diagnosis.selection import (
     UNEXPLAINED_MM,
-    HeldOut,
     clear_improvement,
     confidence_intervals,
     effective_sample_size,
-    held_out,
+    excess_share,
+    indistinct,
     noise_floor_mm,
     systematic_mm,
 )
+from softforce_cli.diagnosis.sensitivities import column_set
+from softforce_cli.diagnosis.solves import SolveCache, solve_states
 from softforce_cli.diagnosis.states import States, group_states, trajectory_segments
 from softforce_cli.errors import SolverError
 from softforce_cli.model.effects import frame_contexts
-from softforce_cli.model.regions import region_labels, region_names
+from softforce_cli.model.regions import node_regions
 from softforce_cli.model.robot import Robot
 
-# Two effects' held-out RMS closer than this (mm) cannot be told apart by this data.
-INDISTINCT_MM = 0.1
+# Accepted candidates refitted on the exact model (two FE solves per affected state each).
+REFIT_COUNT = 1
 # Candidates tried as the second effect of forward selection.
 SECOND_CANDIDATES = 3
+# Regions whose RMS systematic residual exceeds the whole body's by this factor hold it.
+REGION_FACTOR = 1.25
 Stage = Callable[[str, int, int | None], None]
 
 
-@dataclass(frozen=True)
-class Candidate:
-    """One hypothesis fitted and validated."""
+@dataclass(frozen=True, eq=False)
+class Screened:
+    """One candidate on the first-order model: fitted values and held-out error, relative to
+    a static baseline per node (relative) or absolute (hypotheses.ABSOLUTE)."""
 
-    fit: Fit
+    candidate: Candidate
+    values: np.ndarray
+    heldout: HeldOut
+    relative: bool
+
+    @property
+    def key(self) -> tuple[str, bool]:
+        return self.candidate.hypotheses[0].name, self.relative
+
+
+@dataclass(frozen=True, eq=False)
+class Final:
+    """A refitted candidate: the exact fit, its held-out error, intervals, acceptance."""
+
+    screened: Screened
+    refit: Refit
     heldout: HeldOut
     ci95: np.ndarray
     accepted: bool
 
     @property
-    def label(self) -> str:
-        return self.fit.hypothesis.label
+    def candidate(self) -> Candidate:
+        return self.refit.candidate
+
+    @property
+    def values(self) -> np.ndarray:
+        return self.refit.values
 
 
-@dataclass(frozen=True)
+@dataclass(eq=False)
 class Diagnosis:
-    """The result: verdict, noise floor, ranked candidates (best per effect), selected effects,
-    location, and the evidence numbers."""
+    """The result (or what an interrupted run reached: `stage`, `interrupted`)."""
 
-    verdict: str
-    noise_floor_mm: float
-    ranked: tuple[Candidate, ...]
-    selected: tuple[Candidate, ...]
-    groups: tuple[tuple[str, ...], ...]
-    location: dict
-    evidence: dict
-    nominal: Fields
-    final: Fields
-    states: States
-    observations: Observations = field(repr=False)
+    robot: Robot
+    observations: Observations
+    states: States | None = None
+    noise_floor_mm: float = float("nan")
+    nominal: Field | None = None
+    uncorrected: Field | None = None
+    predicted_mm: np.ndarray | None = None
+    screened: list[Screened] = field(default_factory=list)
+    finals: list[Final] = field(default_factory=list)
+    selected: list[Final] = field(default_factory=list)
+    verdict: str | None = None
+    groups: list[list[str]] = field(default_factory=list)
+    location: dict = field(default_factory=dict)
+    evidence: dict = field(default_factory=dict)
+    not_refitted: list[str] = field(default_factory=list)
+    stage: str = "observations"
+    interrupted: bool = False
+
+    @property
+    def final_field(self) -> Field | None:
+        return self.selected[-1].refit.field if self.selected else self.nominal
+
+    @property
+    def final_predicted_mm(self) -> np.ndarray | None:
+        return self.selected[-1].refit.predicted_mm if self.selected else self.predicted_mm
 
 
-def diagnose_observations(robot: Robot, observations: Observations,
-                          robot_from_camera: RigidTransform,
-                          stage: Stage | None = None) -> Diagnosis:
-    """Fit every hypothesis to the observations and choose what the data supports."""
+def diagnose_observations(robot: Robot, observations: Observations, cache: SolveCache,
+                          stage: Stage | None = None,
+                          stop_requested: Callable[[], bool] = lambda: False) -> Diagnosis:
+    """Screen every hypothesis, refit the best, choose what the data supports. Returns the
+    Diagnosis reached so far (interrupted) when stop_requested() turns true."""
     report = stage or (lambda name, done, total: None)
-    contexts = frame_contexts(observations.times_s, observations.actuations)
-    hold_needed = True
-    states = group_states_from(contexts, hold_needed)
-    reference = int(np.argmin(np.abs(states.actuation).sum(axis=1)))
-    report("mesh correction", 0, 1)
-    correction, accurate = mesh_correction(robot, states.actuation[reference])
-    report("mesh correction", 1, 1)
-    predictor = Predictor(robot, states.actuation, reference, correction)
-    predictor.warm(lambda done, total: report("states", done, total))
-    problem = Problem(robot, observations, states, contexts, predictor, robot_from_camera)
-    nominal = problem.fields(())
-    uncorrected = _without_correction(problem)
+    result = Diagnosis(robot, observations)
+    contexts = tuple(frame_contexts(observations.times_s, observations.actuations))
+    states = group_states(contexts)
+    result.states = states
+    if states.count < 2 or np.ptp(states.actuation, axis=0).max(initial=0.0) <= 0.0:
+        raise DiagnosisError(
+            f"{', '.join(observations.recordings)}: the actuation never changes, and a model "
+            "cannot be told from its missing physics without it; record loading, unloading "
+            "and holds of the cables")
+    columns = column_set(robot)
+    result.stage = "solves"
+    solutions = solve_states(robot, states.actuation, cache, columns,
+                             lambda done, total: report("FE states", done, total),
+                             stop_requested)
+    if solutions is None:
+        result.interrupted = True
+        return result
+    points = [f.points_mm for f in observations.frames]
+    mesh = robot.mesh
+    result.predicted_mm = solutions.predicted_mm
+    nominal = measure(points, solutions.predicted_mm, states.of_frame, mesh.surface_nodes,
+                      mesh.surface_faces)
+    uncorrected = nominal if solutions.given_mm is None else measure(
+        points, solutions.given_mm, states.of_frame, mesh.surface_nodes, mesh.surface_faces)
+    result.nominal, result.uncorrected = nominal, uncorrected
     floor = noise_floor_mm(nominal, states.of_frame)
-    segments = trajectory_segments(states, np.array([f.recording for f in observations.frames]))
-    n_eff = effective_sample_size(nominal)
-    candidates = hypotheses(robot)
-    fitted: list[Candidate] = []
-    skipped: list[str] = []
-    for i, hypothesis in enumerate(candidates):
-        report("fitting", i, len(candidates))
+    result.noise_floor_mm = floor
+    frames = len(observations.frames)
+    recordings = np.array([f.recording for f in observations.frames])
+    segments = trajectory_segments(states, recordings)
+    n_eff = effective_sample_size(nominal, frames)
+    cables = tuple(spec.name for spec in robot.cable_specs)
+    basis = build_basis(solutions.predicted_mm, solutions.mesh_columns, mesh.surface_faces,
+                        columns, states.of_frame, contexts, cables,
+                        observations.robot_from_camera, states.actuation)
+    inputs = basis.inputs_for(nominal)
+    result.stage = "screening"
+    tasks = [(Candidate((h,)), relative) for h in hypotheses(robot, columns)
+             for relative in (True, False) if relative or h.name in ABSOLUTE]
+    for i, (candidate, relative) in enumerate(tasks):
+        if stop_requested():
+            result.interrupted = True
+            return result
+        report("screening", i, len(tasks))
+        values = fit_values(candidate, inputs, nominal, relative)
+        result.screened.append(Screened(candidate, values, held_out(
+            candidate, inputs, nominal, segments, values, relative), relative))
+    report("screening", len(tasks), len(tasks))
+    result.screened.sort(key=lambda s: -excess_share(s.heldout, floor))
+    exact = ExactModel(solutions, states, contexts, points, basis)
+    result.stage = "refit"
+    best = [s for s in _best_per_effect(result.screened)
+            if clear_improvement(s.heldout, floor)][:REFIT_COUNT]
+    for i, screened in enumerate(best):
+        if stop_requested():
+            result.interrupted = True
+            return result
+        report("refit", i, len(best))
         try:
-            fitted.append(_candidate(problem, hypothesis, nominal, segments, floor, n_eff))
-        except SolverError as error:  # this effect cannot be evaluated on this robot
-            skipped.append(f"{hypothesis.label}: {error}")
-    report("fitting", len(candidates), len(candidates))
-    ranked = _best_per_effect(fitted)
-    selected, final = _forward(problem, ranked, nominal, segments, floor, n_eff, report)
-    before = nominal.rms()
-    after = final.rms()
-    remaining = systematic_mm(after, floor)
-    if selected and remaining > UNEXPLAINED_MM and (
-            systematic_mm(before, floor) - remaining) < 0.5 * systematic_mm(before, floor):
-        verdict = "unexplained"
-    elif selected:
-        verdict = selected[0].fit.hypothesis.name
-    else:
-        verdict = "unexplained" if remaining > UNEXPLAINED_MM else "none"
-    groups = _groups(ranked, selected)
-    location = _location(robot, final if verdict == "unexplained" else nominal, floor,
-                         selected)
-    evidence = {
-        "frames": len(observations.frames), "frames_skipped": observations.skipped,
-        "states": states.count, "segments": int(segments.max() + 1),
-        "effective_frames": round(n_eff, 1),
-        "element": robot.element_name, "mesh_correction_element": accurate,
-        "mesh_correction_rms_mm": round(_surface_rms(correction, robot), 3),
-        "rms_without_mesh_correction_mm": round(uncorrected.rms(), 3),
-        "rms_nominal_mm": round(before, 3), "rms_final_mm": round(after, 3),
-        "systematic_nominal_mm": round(systematic_mm(before, floor), 3),
-        "systematic_final_mm": round(remaining, 3),
-        "fe_evaluations": problem.evaluations,
-        "hypotheses_not_evaluated": skipped,
-    }
-    return Diagnosis(verdict, floor, tuple(ranked), tuple(selected), groups, location,
-                     evidence, nominal, final, states, observations)
+            result.finals.append(_final(exact, screened, nominal, segments, floor, n_eff,
+                                        frames, stop_requested))
+        except SolverError as error:  # no equilibrium with this effect near the nominal one
+            result.not_refitted.append(f"{screened.candidate.label}: {error}")
+    report("refit", len(best), len(best))
+    result.finals.sort(key=lambda f: -excess_share(f.heldout, floor))
+    accepted = [f for f in result.finals if f.accepted]
+    if accepted:
+        result.stage = "second effect"
+        result.selected = [accepted[0]]
+        second = _second(exact, result, accepted[0], inputs, nominal, segments, floor, n_eff,
+                         frames, report, stop_requested)
+        if second is not None:
+            result.selected.append(second)
+    result.stage = "verdict"
+    _verdict(result, floor, basis, solutions, segments, n_eff)
+    result.stage = "done"
+    return result
 
 
-def group_states_from(contexts, use_hold: bool) -> States:
-    """States from model.effects frame contexts (loading direction and hold time)."""
-    from softforce_cli.diagnosis.states import FrameContexts
-
-    return group_states(FrameContexts(
-        np.array([c.actuation for c in contexts]), np.array([c.loading for c in contexts]),
-        np.array([c.hold_s for c in contexts])), use_hold)
-
-
-def _without_correction(problem: Problem) -> Fields:
-    saved = problem.predictor.correction
-    problem.predictor.correction = None
-    problem._cache.clear()
-    try:
-        return problem.fields(())
-    finally:
-        problem.predictor.correction = saved
-        problem._cache.clear()
+def _best_per_effect(screened: list[Screened]) -> list[Screened]:
+    """The best target of each effect and mode, in the order given."""
+    best: dict[tuple[str, bool], Screened] = {}
+    for s in screened:
+        best.setdefault(s.key, s)
+    return list(best.values())
 
 
-def _candidate(problem, hypothesis: Hypothesis, nominal: Fields, segments, floor, n_eff,
-               others=()) -> Candidate:
-    fitted = fit(problem, hypothesis, others, nominal if not others else None)
-    result = held_out(fitted, nominal, segments)
-    return Candidate(fitted, result, confidence_intervals(fitted, n_eff),
-                     clear_improvement(result, floor))
+def _final(exact: ExactModel, screened: Screened, nominal: Field, segments: np.ndarray,
+           floor: float, n_eff: float, frames: int, stop_requested,
+           baseline: HeldOut | None = None) -> Final:
+    fitted = refit(exact, screened.candidate, screened.values, screened.relative,
+                   stop_requested)
+    inputs = exact.basis.inputs_for(fitted.field)
+    result = held_out(fitted.candidate, inputs, fitted.field, segments, fitted.values,
+                      screened.relative, jacobian=fitted.jacobian, nominal=nominal)
+    ci = confidence_intervals(fitted.field, fitted.jacobian, fitted.values, n_eff, frames)
+    return Final(screened, fitted, result, ci, clear_improvement(result, floor, baseline))
 
 
-def _best_per_effect(fitted: list[Candidate]) -> list[Candidate]:
-    best: dict[str, Candidate] = {}
-    for c in fitted:
-        name = c.fit.hypothesis.name
-        if name not in best or c.heldout.rms_after_mm < best[name].heldout.rms_after_mm:
-            best[name] = c
-    return sorted(best.values(), key=lambda c: c.heldout.rms_after_mm)
-
-
-def _forward(problem, ranked, nominal, segments, floor, n_eff, report):
-    """The best accepted effect, then the best second one that clearly improves on it."""
-    accepted = [c for c in ranked if c.accepted]
-    if not accepted:
-        return [], nominal
-    first = accepted[0]
-    selected, final = [first], first.fit.fields
-    others = [c for c in ranked if c is not first][:SECOND_CANDIDATES]
-    seconds = []
+def _second(exact, result: Diagnosis, first: Final, inputs, nominal, segments, floor, n_eff,
+            frames, report, stop_requested) -> Final | None:
+    """The best second effect, screened together with the first and refitted, accepted when
+    it clearly improves on the first alone."""
+    taken = first.candidate.hypotheses[0]
+    relative = first.screened.relative
+    others = [s for s in _best_per_effect(result.screened) if s.relative == relative
+              and s.candidate.hypotheses[0].name != taken.name][:SECOND_CANDIDATES]
+    pairs = []
     for i, other in enumerate(others):
         report("second effect", i, len(others))
-        seconds.append(_candidate(problem, other.fit.hypothesis, final, segments, floor, n_eff,
-                                  (first.fit.effect,)))
+        pair = Candidate((taken, *other.candidate.hypotheses))
+        start = np.concatenate([first.values, other.values])
+        values = fit_values(pair, inputs, nominal, relative, start=start)
+        pairs.append(Screened(pair, values, held_out(pair, inputs, nominal, segments, values,
+                                                     relative), relative))
     report("second effect", len(others), len(others))
-    clear = [c for c in seconds if c.accepted]
-    if clear:
-        second = min(clear, key=lambda c: c.heldout.rms_after_mm)
-        selected.append(second)
-        final = second.fit.fields
-    return selected, final
+    if not pairs or stop_requested():
+        return None
+    best = min(pairs, key=lambda s: s.heldout.rms_after_mm)
+    if not clear_improvement(best.heldout, floor, first.screened.heldout):
+        return None
+    try:
+        final = _final(exact, best, nominal, segments, floor, n_eff, frames, stop_requested,
+                       baseline=first.heldout)
+    except SolverError as error:
+        result.not_refitted.append(f"{best.candidate.label}: {error}")
+        return None
+    return final if final.accepted else None
 
 
-def _groups(ranked, selected) -> tuple[tuple[str, ...], ...]:
-    """Effects whose held-out residual is within INDISTINCT_MM of a selected one."""
-    groups = []
-    for chosen in selected:
-        near = [c.fit.hypothesis.name for c in ranked if c.accepted and c is not chosen and abs(
-            c.heldout.rms_after_mm - chosen.heldout.rms_after_mm) < INDISTINCT_MM]
+def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
+             n_eff: float) -> None:
+    nominal = result.nominal
+    final = result.final_field
+    before, after = nominal.rms(), final.rms()
+    relative_before = next(s.heldout.rms_before_mm for s in result.screened if s.relative)
+    last = result.selected[-1] if result.selected else None
+    relative_after = (last.heldout.rms_after_mm if last is not None and last.screened.relative
+                      else relative_before)
+    structured = (systematic_mm(relative_after, floor) > floor
+                  or systematic_mm(after, floor) > UNEXPLAINED_MM)
+    if result.selected:
+        result.verdict = result.selected[0].candidate.hypotheses[0].name
+    else:
+        result.verdict = "unexplained" if structured else "none"
+    for chosen in result.selected:
+        near = [f.candidate.label for f in result.finals if f is not chosen
+                and f.accepted and indistinct(f.heldout, chosen.heldout)]
         if near:
-            groups.append((chosen.fit.hypothesis.name, *near))
-    return tuple(groups)
+            result.groups.append([chosen.candidate.label, *near])
+    result.location = _location(result.robot, nominal if result.selected else final,
+                                result.selected)
+    mesh = result.robot.mesh
+    given = result.uncorrected.rms()
+    corrections = (np.zeros(1) if solutions.given_mm is None else
+                   (solutions.predicted_mm - solutions.given_mm)[:, mesh.surface_nodes])
+    result.evidence = {
+        "frames": len(result.observations.frames),
+        "frames_skipped": result.observations.skipped,
+        "states": result.states.count,
+        "segments": int(segments.max() + 1),
+        "effective_frames": round(n_eff, 1),
+        "element": result.robot.element_name,
+        "prediction_element": solutions.robot.element_name,
+        "mesh_correction_rms_mm": round(float(np.sqrt(np.mean(np.sum(corrections**2,
+                                                                      axis=-1)))), 3),
+        "rms_given_element_mm": round(given, 3),
+        "mesh_share": round(max(0.0, 1.0 - before**2 / given**2), 3) if given > 0 else 0.0,
+        "rms_nominal_mm": round(before, 3),
+        "rms_final_mm": round(after, 3),
+        "systematic_nominal_mm": round(systematic_mm(before, floor), 3),
+        "systematic_final_mm": round(systematic_mm(after, floor), 3),
+        "heldout_relative_nominal_mm": round(relative_before, 3),
+        "heldout_relative_final_mm": round(relative_after, 3),
+        "unexplained_threshold_mm": UNEXPLAINED_MM,
+        "remaining_structured": bool(structured),
+        "fe_solves_refit": int(sum(f.refit.solves for f in result.finals)),
+        "screened": len(result.screened),
+        "not_refitted": result.not_refitted,
+    }
 
 
-def node_systematic_mm(fields: Fields) -> np.ndarray:
-    """(s,) per surface node: the weighted mean residual over all frames (mm)."""
-    total = fields.count.sum(axis=0)
-    return np.divide((fields.count * fields.mean_mm).sum(axis=0), total,
-                     out=np.zeros_like(total), where=total > 0)
+def node_systematic_mm(field: Field, node_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) per mesh node the point-weighted mean residual over all frames (mm; 0 where
+    unseen), and (n,) the points behind it."""
+    weight = np.bincount(field.node, weights=field.weight, minlength=node_count)
+    total = np.bincount(field.node, weights=field.weight * field.mean_mm, minlength=node_count)
+    return np.divide(total, weight, out=np.zeros(node_count), where=weight > 0), weight
 
 
-def _location(robot: Robot, fields: Fields, floor: float, selected) -> dict:
-    """Regions, cables and nodes where the residual concentrates (or the selected effect's
-    target)."""
-    names = region_names(robot)
-    surface = robot.mesh.surface_nodes
-    labels = region_labels(robot, robot.mesh.nodes_mm[surface])
-    node_mean = node_systematic_mm(fields)
-    seen = fields.count.sum(axis=0)
+def _location(robot: Robot, field: Field, selected: list[Final]) -> dict:
+    """Regions, cables and nodes where the residual concentrates; a selected effect's
+    target first."""
+    n = robot.mesh.node_count
+    mean, weight = node_systematic_mm(field, n)
+    masks = {name: mask[:n] for name, mask in node_regions(robot).items()}
     per_region = {}
-    for i, name in enumerate(names):
-        mask = (labels == i) & (seen > 0)
-        if mask.any():
-            per_region[name] = float(np.sqrt(np.average(node_mean[mask] ** 2,
-                                                        weights=seen[mask])))
-    overall = float(np.sqrt(np.average(node_mean**2, weights=np.maximum(seen, 1e-12))))
-    regions = sorted((n for n, v in per_region.items() if v > 1.5 * overall),
-                     key=lambda n: -per_region[n])
+    for name, mask in masks.items():
+        seen = mask & (weight > 0)
+        if seen.any():
+            per_region[name] = float(np.sqrt(np.average(mean[seen] ** 2, weights=weight[seen])))
+    seen = weight > 0
+    overall = float(np.sqrt(np.average(mean[seen] ** 2, weights=weight[seen]))) if seen.any() \
+        else 0.0
+    regions = sorted((r for r, v in per_region.items() if v > REGION_FACTOR * overall),
+                     key=lambda r: -per_region[r])
+    targets = [h.target for f in selected for h in f.candidate.hypotheses if h.target]
+    regions = list(dict.fromkeys([*targets, *regions]))
     cables = [spec.name for spec in robot.cable_specs]
-    targets = [c.fit.hypothesis.target for c in selected if c.fit.hypothesis.target]
-    if targets:
-        regions = list(dict.fromkeys([*targets, *regions]))
-    top = surface[np.argsort(-np.abs(node_mean))[:10]]
+    top = np.argsort(-np.abs(mean) * seen)[:10]
     return {"regions": regions, "cables": [r for r in regions if r in cables],
-            "nodes": [int(n) for n in top],
+            "nodes": [int(i) for i in top if seen[i]],
             "region_rms_mm": {k: round(v, 3) for k, v in per_region.items()}}
-
-
-def _surface_rms(correction: np.ndarray, robot: Robot) -> float:
-    values = correction[robot.mesh.surface_nodes]
-    return float(np.sqrt(np.mean(np.sum(values**2, axis=1))))

@@ -9,55 +9,139 @@ import re
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from softforce_cli import __version__
-from softforce_cli.diagnosis.pipeline import Candidate, Diagnosis
-from softforce_cli.model.effects import EFFECTS, effect_toml
+from softforce_cli.diagnosis.pipeline import Diagnosis, Final, Screened
+from softforce_cli.diagnosis.selection import excess_share, explained_mm
+from softforce_cli.model.effects import EFFECTS, Effect, effect_toml
+
+FORMAT = "softforce.diagnosis"
+MODES = {True: "relative to a static baseline per node", False: "absolute"}
 
 
 def _finite(value: float) -> float | None:
     return round(float(value), 6) if math.isfinite(value) else None
 
 
-def candidate_dict(candidate: Candidate) -> dict[str, Any]:
-    """One ranked effect: parameters with 95% intervals, held-out RMS, evidence."""
-    hypothesis = candidate.fit.hypothesis
-    spec = EFFECTS[hypothesis.name]
-    parameters = {
-        name: {"value": _finite(value), "ci95": [_finite(lo), _finite(hi)],
-               "unit": spec.parameter(name).unit}
-        for name, value, (lo, hi) in zip(hypothesis.free, candidate.fit.values, candidate.ci95,
-                                         strict=True)}
+def _parameters(effect: Effect, free: tuple[str, ...], values: np.ndarray,
+                ci95: np.ndarray | None) -> dict[str, dict[str, Any]]:
+    """{name: {value, ci95, unit}} in the effect's own parameters (compliance -> stiffness)."""
+    out = {}
+    for name, value, interval in zip(free, values, ci95 if ci95 is not None else
+                                     [None] * len(free), strict=True):
+        if name == "compliance_mm_per_n":  # reported as the spec's stiffness = 1 / compliance
+            name = "stiffness_n_per_mm"
+            value = effect[name]
+            if interval is not None:
+                interval = [1.0 / interval[1] if interval[1] > 0 else math.inf,
+                            1.0 / interval[0] if interval[0] > 0 else math.inf]
+        spec = EFFECTS[effect.name].parameter(name)
+        out[name] = {"value": _finite(value),
+                     "ci95": None if interval is None else [_finite(v) for v in interval],
+                     "unit": spec.unit}
+    return out
+
+
+def effect_entry(item: Final | Screened, floor_mm: float, selected: bool) -> dict[str, Any]:
+    """One ranked effect (its first hypothesis; the second of a pair is its own entry)."""
+    screened = item.screened if isinstance(item, Final) else item
+    candidate = screened.candidate
+    values = item.values
+    ci = item.ci95 if isinstance(item, Final) else None
+    held = item.heldout
+    effects = candidate.effects(values)
+    parameters: dict[str, Any] = {}
+    for hypothesis, effect, part, part_ci in zip(
+            candidate.hypotheses, effects, candidate.split(values),
+            np.split(ci, np.cumsum(candidate.sizes)[:-1]) if ci is not None else
+            [None] * len(effects), strict=True):
+        prefix = "" if len(effects) == 1 else f"{hypothesis.label}."
+        parameters.update({prefix + k: v for k, v in _parameters(
+            effect, hypothesis.free, part, part_ci).items()})
+    first = candidate.hypotheses[0]
     return {
-        "name": hypothesis.name,
-        "target": hypothesis.target,
+        "name": first.name,
+        "target": first.target,
+        "label": candidate.label,
         "parameters": parameters,
-        "heldout_rms_before_mm": _finite(candidate.heldout.rms_before_mm),
-        "heldout_rms_after_mm": _finite(candidate.heldout.rms_after_mm),
+        "heldout_rms_before_mm": _finite(held.rms_before_mm),
+        "heldout_rms_after_mm": _finite(held.rms_after_mm),
         "evidence": {
-            "accepted": candidate.accepted,
-            "segment_gain_z": _finite(candidate.heldout.gain_z),
-            "fit_rms_mm": _finite(candidate.fit.fields.rms()),
+            "selected": selected,
+            "accepted": item.accepted if isinstance(item, Final) else None,
+            "refitted": isinstance(item, Final),
+            "mode": MODES[screened.relative],
+            "segment_gain_z": _finite(held.gain_z()),
+            "excess_share": _finite(excess_share(held, floor_mm)),
+            "explained_mm": _finite(explained_mm(held)),
+            "fe_solves": item.refit.solves if isinstance(item, Final) else 0,
         },
     }
 
 
 def diagnosis_document(diagnosis: Diagnosis, inputs: dict[str, Any]) -> dict[str, Any]:
-    """The diagnosis.json document."""
-    selected = {id(c) for c in diagnosis.selected}
-    ranked = list(diagnosis.selected) + [c for c in diagnosis.ranked if id(c) not in selected]
+    """The diagnosis.json document (also of an interrupted run: `interrupted`, `stage`)."""
+    floor = diagnosis.noise_floor_mm
+    chosen = {id(f) for f in diagnosis.selected}
+    refitted = {(f.screened.key) for f in diagnosis.finals}
+    ranked: list[dict[str, Any]] = [effect_entry(f, floor, True) for f in diagnosis.selected]
+    ranked += [effect_entry(f, floor, False) for f in diagnosis.finals if id(f) not in chosen]
+    seen = set(refitted)
+    for s in diagnosis.screened:  # the best target of every other effect and mode
+        if s.key not in seen:
+            seen.add(s.key)
+            ranked.append(effect_entry(s, floor, False))
     return {
-        "format": "softforce.diagnosis",
+        "format": FORMAT,
         "version": 1,
         "softforce_version": __version__,
         "inputs": inputs,
+        "interrupted": diagnosis.interrupted,
+        "stage": diagnosis.stage,
         "verdict": diagnosis.verdict,
         "noise_floor_mm": _finite(diagnosis.noise_floor_mm),
-        "selected": [c.fit.hypothesis.label for c in diagnosis.selected],
-        "effects": [candidate_dict(c) for c in ranked],
-        "indistinguishable_groups": [list(g) for g in diagnosis.groups],
+        "effects": ranked,
+        "indistinguishable_groups": diagnosis.groups,
         "location": diagnosis.location,
         "evidence": diagnosis.evidence,
+        "summary": summary_lines(diagnosis),
     }
+
+
+def summary_lines(diagnosis: Diagnosis) -> list[str]:
+    """The human-readable summary: what was found, where, how much better, the mesh."""
+    if diagnosis.verdict is None:
+        return [f"interrupted during {diagnosis.stage}: no verdict"]
+    evidence = diagnosis.evidence
+    lines = []
+    if diagnosis.selected:
+        for final in diagnosis.selected:
+            values = ", ".join(f"{k} = {v['value']:.4g} [{v['ci95'][0]:.4g}, {v['ci95'][1]:.4g}]"
+                               f"{' ' + v['unit'] if v['unit'] else ''}"
+                               for k, v in effect_entry(final, diagnosis.noise_floor_mm,
+                                                        True)["parameters"].items())
+            lines.append(f"{final.candidate.label}: {values}; held-out residual "
+                         f"{final.heldout.rms_before_mm:.2f} -> {final.heldout.rms_after_mm:.2f}"
+                         f" mm ({MODES[final.screened.relative]}), noise floor "
+                         f"{diagnosis.noise_floor_mm:.2f} mm")
+    elif diagnosis.verdict == "none":
+        lines.append("no effect of the library improves the held-out fit clearly: the model "
+                     f"explains the recording to {evidence['rms_nominal_mm']:.2f} mm RMS "
+                     f"(noise floor {diagnosis.noise_floor_mm:.2f} mm)")
+    else:
+        where = ", ".join(diagnosis.location.get("regions", [])) or "the whole body"
+        lines.append(f"a structured mismatch ({evidence['systematic_final_mm']:.2f} mm above "
+                     f"the noise floor) that no effect of the library explains, in {where}")
+    for group in diagnosis.groups:
+        lines.append(f"this data cannot tell apart: {', '.join(group)}")
+    if evidence.get("prediction_element") != evidence.get("element"):
+        lines.append(f"the robot's {evidence['element']} mesh alone leaves "
+                     f"{evidence['rms_given_element_mm']:.2f} mm RMS (locking, "
+                     f"docs/locking.md): diagnosed with {evidence['prediction_element']} "
+                     f"elements on the same mesh ({evidence['rms_nominal_mm']:.2f} mm); "
+                     "use the robot with element = \"p2\" for sensing")
+    return lines
 
 
 def fitted_robot_toml(robot_file: Path, diagnosis: Diagnosis, output_dir: Path) -> str:
@@ -72,8 +156,8 @@ def fitted_robot_toml(robot_file: Path, diagnosis: Diagnosis, output_dir: Path) 
 
     # [mesh] path and reduced are relative to the robot file: rebase them on the output
     text = re.sub(r'(?m)^(\s*(?:path|reduced)\s*=\s*)"([^"]+)"', relocate, text)
-    if diagnosis.verdict in ("none", "unexplained"):
+    effects = [e for f in diagnosis.selected for e in f.candidate.effects(f.values)]
+    if not effects:
         return text
-    tables = "\n".join(effect_toml(c.fit.effect) for c in diagnosis.selected)
     header = f"\n# fitted by softforce diagnose {__version__} (diagnosis.json)\n"
-    return text.rstrip("\n") + "\n" + header + tables
+    return text.rstrip("\n") + "\n" + header + "\n".join(effect_toml(e) for e in effects)

@@ -68,6 +68,48 @@ def node_residuals(points_mm: np.ndarray, positions_mm: np.ndarray, surface_node
     return NodeResiduals(surface_nodes, mean, count)
 
 
+@dataclass(frozen=True, eq=False)
+class Field:
+    """Residual entries of a set of frames: one per (frame, surface node) with points.
+
+    frame  : (E,) frame index.
+    node   : (E,) mesh node index.
+    mean_mm: (E,) mean signed normal residual of the node's points in that frame.
+    weight : (E,) number of points.
+    """
+
+    frame: np.ndarray
+    node: np.ndarray
+    mean_mm: np.ndarray
+    weight: np.ndarray
+
+    def rms(self, mask: np.ndarray | None = None, shift: np.ndarray | None = None) -> float:
+        """Point-weighted RMS (mm) of the entries in `mask` (default all), after subtracting a
+        model shift (E,) of the predicted surface along its normals."""
+        values = self.mean_mm if shift is None else self.mean_mm - shift
+        if mask is None:
+            return weighted_rms(values, self.weight)
+        return weighted_rms(values[mask], self.weight[mask])
+
+
+def measure(points_mm: list[np.ndarray], positions_mm: np.ndarray, of_frame: np.ndarray,
+            surface_nodes: np.ndarray, surface_faces: np.ndarray) -> Field:
+    """The residual entries of frames' points (t lists of (p, 3)) against the predicted mesh
+    nodes of their states (S, n, 3); of_frame (t,) the state of each frame."""
+    normals = [surface_normals(p, surface_faces) for p in positions_mm]
+    frames, nodes, means, weights = [], [], [], []
+    for i, points in enumerate(points_mm):
+        s = of_frame[i]
+        field = node_residuals(points, positions_mm[s], surface_nodes, normals[s])
+        seen = field.count > 0
+        frames.append(np.full(int(seen.sum()), i))
+        nodes.append(surface_nodes[seen])
+        means.append(field.mean_mm[seen])
+        weights.append(field.count[seen].astype(float))
+    return Field(*(np.concatenate(a) if a else np.zeros(0) for a in (frames, nodes, means,
+                                                                       weights)))
+
+
 def weighted_rms(values: np.ndarray, weights: np.ndarray) -> float:
     """sqrt(sum w v^2 / sum w) over finite values; NaN when no weight."""
     values = np.asarray(values, dtype=float)

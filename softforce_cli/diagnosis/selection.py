@@ -1,133 +1,129 @@
-"""Held-out error, the noise floor, and which effects the data supports.
+"""The noise floor, the effective sample size, and which effects the data supports.
 
 Validation leaves one trajectory segment out at a time (contiguous frames, never random
 frames: neighbouring frames share their state and noise, so a random split would flatter any
-fit), refits the effect's parameters on the rest (linearised at the full fit) and measures the
-residual on the segment left out. An effect is accepted only when its held-out improvement is
-clear: beyond twice its standard error over segments (an effective sample size that counts
-segments, not frames) and a fixed share of the excess over the noise floor.
+fit) and measures the segment with the effect refitted on the rest (diagnosis.fitting). The
+segments are the samples of the acceptance test: an effect is accepted when
+
+1. its mean held-out gain over the segments is more than Z_ACCEPT standard errors above zero
+   (a one-sided test at about 2.5% on K <= 8 segments); overfitting a nuisance can only make
+   held-out gains negative on average, so a real, generalising improvement is what passes;
+2. it removes at least MIN_EXCESS_SHARE of the held-out mean square above the noise floor:
+   the physics a model misses explains most of the mismatch it makes, while a nuisance
+   effect absorbing part of the discretisation mismatch (coarse mesh against the body, law
+   against law) removes a small share of it (measured on clean recordings,
+   docs/diagnosis.md: at most 0.2 there);
+3. the residual it explains, sqrt(before^2 - after^2) in held-out RMS, is at least the noise
+   floor: a systematic shape change smaller than what one frame resolves at a node is below
+   the accurate model's own fidelity (its static-baseline mismatch with the body is
+   0.1-0.3 mm on clean recordings) and would name physics the camera cannot confirm.
+
+Mismatch that no accepted effect explains is structured (`unexplained`) when what remains
+relative to the static baseline is itself above the noise floor, or the absolute residual
+is UNEXPLAINED_MM above it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from softforce_cli.diagnosis.fitting import Fields, Fit, linear_step
+from softforce_cli.diagnosis.fitting import HeldOut
+from softforce_cli.diagnosis.residuals import Field
 
-# An accepted effect removes at least this share of the held-out mean square above the noise
-# floor: a smaller gain is within what the mesh correction and the law leave (measured on
-# clean recordings, docs/diagnosis.md).
-MIN_EXCESS_REDUCTION = 0.3
-# ... and at least this much held-out RMS (mm): far below what a camera resolves otherwise.
-MIN_RMS_GAIN_MM = 0.15
-# A systematic residual (RMS above the floor) larger than this after the best model is a
-# structured mismatch nothing in the library explains.
-UNEXPLAINED_MM = 1.0
-
-
-@dataclass(frozen=True)
-class HeldOut:
-    """Held-out residuals of one fit: rms_before_mm (nominal) and rms_after_mm (fitted) over
-    every segment left out, and per-segment mean-square gains (K,)."""
-
-    rms_before_mm: float
-    rms_after_mm: float
-    gains: np.ndarray
-
-    @property
-    def gain_z(self) -> float:
-        """Mean segment gain over its standard error (the segments are the samples)."""
-        k = len(self.gains)
-        spread = self.gains.std(ddof=1) / np.sqrt(k) if k > 1 else np.inf
-        return float(self.gains.mean() / spread) if spread > 0 else np.inf
+Z_ACCEPT = 2.0
+MIN_EXCESS_SHARE = 0.5
+# Absolute systematic residual (mm) beyond which the static mismatch is structured: the
+# locking-free P2 model of the coarse Diamond leaves 0.8 mm against the converged body on
+# clean recordings (docs/diagnosis.md); about twice that is more than discretisation.
+UNEXPLAINED_MM = 1.5
+# Two candidates whose per-segment held-out errors differ by less than this many standard
+# errors fit this data equally well: one group the data cannot tell apart.
+Z_DISTINCT = 2.0
 
 
-def noise_floor_mm(fields: Fields, of_frame: np.ndarray) -> float:
-    """The frame-to-frame scatter of the residual field within states (mm): what a perfect
-    model still leaves per frame and node. Bias-corrected for the state means removed."""
-    mean, count = fields.mean_mm, fields.count
-    squares, dof = 0.0, 0.0
-    for s in np.unique(of_frame):
-        rows = of_frame == s
-        if rows.sum() < 2:
-            continue
-        w = count[rows]
-        total = w.sum(axis=0)
-        centre = np.divide((w * mean[rows]).sum(axis=0), total, out=np.zeros_like(total),
-                           where=total > 0)
-        squares += float(np.sum(w * (mean[rows] - centre) ** 2))
-        # each node seen in n frames loses one of its n frames to its mean
-        seen = (w > 0).sum(axis=0)
-        dof += float(np.sum(np.where(seen > 1, total * (seen - 1) / np.maximum(seen, 1), 0)))
+def noise_floor_mm(field: Field, of_frame: np.ndarray) -> float:
+    """The frame-to-frame scatter (mm) of the residual field within states: what a perfect
+    model still leaves per frame and node (point-weighted; one degree of freedom per
+    (state, node) group spent on its mean)."""
+    state = of_frame[field.frame]
+    groups, index = np.unique(state * (int(field.node.max()) + 1) + field.node,
+                              return_inverse=True)
+    w = field.weight
+    total = np.bincount(index, weights=w, minlength=len(groups))
+    centre = np.bincount(index, weights=w * field.mean_mm, minlength=len(groups)) / total
+    frames = np.bincount(index, minlength=len(groups))
+    repeated = frames[index] > 1
+    squares = float(np.sum((w * (field.mean_mm - centre[index]) ** 2)[repeated]))
+    # each group of f frames keeps f - 1 of them
+    dof = float(np.sum((w * (frames[index] - 1) / np.maximum(frames[index], 1))[repeated]))
     return float(np.sqrt(squares / dof)) if dof > 0 else float("nan")
 
 
-def effective_sample_size(fields: Fields) -> float:
-    """Frames worth of independent evidence: t (1 - rho) / (1 + rho) with rho the lag-one
-    autocorrelation of the per-frame mean residual."""
-    weights = fields.count.sum(axis=1)
-    series = np.divide((fields.count * fields.mean_mm).sum(axis=1), weights,
-                       out=np.zeros_like(weights), where=weights > 0)
-    t = len(series)
-    if t < 3 or np.ptp(series) == 0:
-        return float(t)
+def effective_sample_size(field: Field, frames: int) -> float:
+    """Frames worth of independent evidence: t (1 - rho) / (1 + rho), rho the lag-one
+    autocorrelation of the per-frame mean residual (correlated frames count less)."""
+    weights = np.bincount(field.frame, weights=field.weight, minlength=frames)
+    sums = np.bincount(field.frame, weights=field.weight * field.mean_mm, minlength=frames)
+    series = np.divide(sums, weights, out=np.zeros(frames), where=weights > 0)
+    if frames < 3 or np.ptp(series) == 0:
+        return float(frames)
     centred = series - series.mean()
     rho = float(np.clip(centred[1:] @ centred[:-1] / (centred @ centred), -0.95, 0.95))
-    return float(t * (1 - rho) / (1 + rho))
-
-
-def held_out(fit_: Fit, nominal: Fields, segments: np.ndarray) -> HeldOut:
-    """Leave each segment out, refit (linearised at the full fit), predict it."""
-    fields, jacobian = fit_.fields, fit_.jacobian
-    before_sq = after_sq = weight = 0.0
-    gains = []
-    for k in np.unique(segments):
-        out = segments == k
-        train = ~out
-        step = linear_step(fields.mean_mm, fields.count, jacobian, rows=train)
-        hypothesis = fit_.hypothesis
-        step = np.clip(fit_.values + step, hypothesis.lower, hypothesis.upper) - fit_.values
-        predicted = fields.mean_mm[out] + np.tensordot(step, jacobian[:, out], axes=1)
-        w = fields.count[out]
-        w_nominal = nominal.count[out]
-        b = float(np.sum(w_nominal * nominal.mean_mm[out] ** 2))
-        a = float(np.sum(w * predicted**2))
-        before_sq, after_sq, weight = before_sq + b, after_sq + a, weight + w.sum()
-        gains.append((b / max(w_nominal.sum(), 1)) - (a / max(w.sum(), 1)))
-    return HeldOut(float(np.sqrt(before_sq / weight)), float(np.sqrt(after_sq / weight)),
-                   np.array(gains))
-
-
-def clear_improvement(result: HeldOut, floor_mm: float) -> bool:
-    """True when the held-out gain is beyond noise and a real share of the excess."""
-    excess = result.rms_before_mm**2 - floor_mm**2
-    gain = result.rms_before_mm**2 - result.rms_after_mm**2
-    return bool(result.gain_z > 2.0
-                and result.rms_before_mm - result.rms_after_mm > MIN_RMS_GAIN_MM
-                and excess > 0 and gain > MIN_EXCESS_REDUCTION * excess)
+    return float(frames * (1 - rho) / (1 + rho))
 
 
 def systematic_mm(rms_mm: float, floor_mm: float) -> float:
-    """The RMS residual above the noise floor: sqrt(rms^2 - floor^2), 0 when below."""
+    """The RMS above the noise floor: sqrt(rms^2 - floor^2), 0 when below."""
     return float(np.sqrt(max(rms_mm**2 - floor_mm**2, 0.0)))
 
 
-def confidence_intervals(fit_: Fit, effective_frames: float) -> np.ndarray:
-    """(k, 2) 95% intervals of the free parameters from the Gauss-Newton covariance, the
-    residual variance inflated by frames / effective frames (correlated frames)."""
-    fields, jacobian = fit_.fields, fit_.jacobian
-    k = len(jacobian)
-    flat = jacobian.reshape(k, -1)
-    w = fields.count.ravel()
-    normal = (flat * w) @ flat.T
-    frames = len(fields.mean_mm)
-    sigma2 = float(np.sum(w * fields.mean_mm.ravel() ** 2) / max(w.sum() - k, 1))
+def excess_share(result: HeldOut, floor_mm: float, baseline: HeldOut | None = None) -> float:
+    """Share of the held-out mean square above the floor that the candidate removes (over
+    `baseline`'s after when given, else the nominal model)."""
+    before = result.rms_before_mm if baseline is None else baseline.rms_after_mm
+    excess = before**2 - floor_mm**2
+    if excess <= 0:
+        return 0.0
+    return float((before**2 - result.rms_after_mm**2) / excess)
+
+
+def explained_mm(result: HeldOut, baseline: HeldOut | None = None) -> float:
+    """The held-out RMS the candidate explains: sqrt(before^2 - after^2) (0 if none)."""
+    before = result.rms_before_mm if baseline is None else baseline.rms_after_mm
+    return float(np.sqrt(max(before**2 - result.rms_after_mm**2, 0.0)))
+
+
+def clear_improvement(result: HeldOut, floor_mm: float, baseline: HeldOut | None = None
+                      ) -> bool:
+    """Rules 1 to 3 of the module's docstring."""
+    return bool(result.gain_z(baseline) > Z_ACCEPT
+                and excess_share(result, floor_mm, baseline) >= MIN_EXCESS_SHARE
+                and explained_mm(result, baseline) >= floor_mm)
+
+
+def indistinct(a: HeldOut, b: HeldOut) -> bool:
+    """True when the per-segment held-out errors of a and b do not differ significantly."""
+    difference = a.after_ms - b.after_ms
+    k = len(difference)
+    if k < 2:
+        return True
+    spread = difference.std(ddof=1) / np.sqrt(k)
+    return bool(abs(difference.mean()) <= Z_DISTINCT * spread) if spread > 0 else bool(
+        difference.mean() == 0)
+
+
+def confidence_intervals(field: Field, jacobian: np.ndarray, values: np.ndarray,
+                         effective_frames: float, frames: int) -> np.ndarray:
+    """(k, 2) 95% intervals of the parameters from the Gauss-Newton covariance of the exact
+    residuals (E,) and the Jacobian (E, k), the variance inflated by frames / effective
+    frames (correlated frames) and counted per entry, not per point (the points of one node
+    in one frame share its error)."""
+    w = field.weight
+    normal = (jacobian * w[:, None]).T @ jacobian
+    k = len(values)
+    sigma2 = float(np.sum(w * field.mean_mm**2) / max(w.sum() - k, 1))
+    per_entry = w.sum() / max(len(w), 1)
     inflation = frames / max(effective_frames, 1.0)
-    # weights count points: the points of one node in one frame share its error, so the
-    # variance is per node-frame (count 1), not per point
-    per_point = w.sum() / max(np.count_nonzero(w), 1)
-    covariance = np.linalg.pinv(normal) * sigma2 * inflation * per_point
+    covariance = np.linalg.pinv(normal) * sigma2 * per_entry * inflation
     half = 1.96 * np.sqrt(np.clip(np.diag(covariance), 0, None))
-    return np.stack([fit_.values - half, fit_.values + half], axis=1)
+    return np.stack([values - half, values + half], axis=1)

@@ -8,31 +8,20 @@ has a few dozen states.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from softforce_cli.model.effects import FrameContext
+
 # Inputs closer than this (mm or N) are one state: well below what a camera resolves (a
 # 0.05 mm cable change moves the Diamond's surface by about 0.1 mm).
 ACTUATION_TOLERANCE = 0.05
-# Hold-time bin edges (s): creep follows log time, so the bins are geometric.
-HOLD_BINS_S = (0.0, 1.0, 3.0, 9.0, 27.0)
+# Hold-time bin edges (s): creep follows the hold's exponential, resolved on a log scale.
+HOLD_BINS_S = (1.0, 3.0, 9.0, 27.0)
 # Trajectory segments for leave-one-segment-out validation: at most this many.
 MAX_SEGMENTS = 8
-
-
-@dataclass(frozen=True)
-class FrameContexts:
-    """Per-frame context of the inputs (t frames, a cables).
-
-    actuation : (t, a) inputs.
-    direction : (t, a) +1 after an increase, -1 after a decrease, 0 before any change.
-    hold_s    : (t,) seconds since the inputs last changed.
-    """
-
-    actuation: np.ndarray
-    direction: np.ndarray
-    hold_s: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -40,13 +29,13 @@ class States:
     """Distinct states and which frames they serve.
 
     actuation : (S, a) inputs of each state.
-    direction : (S, a) loading direction of each state.
-    hold_s    : (S,) representative hold time (the mean over its frames).
+    loading   : (S, a) loading direction of each state (+1, -1, 0).
+    hold_s    : (S,) mean hold time of its frames.
     of_frame  : (t,) state index of each frame.
     """
 
     actuation: np.ndarray
-    direction: np.ndarray
+    loading: np.ndarray
     hold_s: np.ndarray
     of_frame: np.ndarray
 
@@ -55,36 +44,19 @@ class States:
         return len(self.actuation)
 
 
-def frame_contexts(times_s: np.ndarray, actuations: np.ndarray) -> FrameContexts:
-    """Direction and hold time of every frame from its time (t,) and inputs (t, a)."""
-    actuations = np.asarray(actuations, dtype=float)
-    t, a = actuations.shape
-    direction = np.zeros((t, a))
-    hold = np.zeros(t)
-    changed_at = times_s[0] if t else 0.0
-    for i in range(1, t):  # a sequential recurrence over frames (t is a few hundred)
-        step = actuations[i] - actuations[i - 1]
-        moved = np.abs(step) > ACTUATION_TOLERANCE
-        direction[i] = np.where(moved, np.sign(step), direction[i - 1])
-        if moved.any():
-            changed_at = times_s[i]
-        hold[i] = times_s[i] - changed_at
-    return FrameContexts(actuations, direction, hold)
-
-
-def group_states(contexts: FrameContexts, use_hold: bool = False) -> States:
-    """One state per distinct (rounded inputs, direction[, hold bin]) of the frames."""
-    keys = [np.round(contexts.actuation / ACTUATION_TOLERANCE).astype(np.int64),
-            contexts.direction.astype(np.int64)]
-    if use_hold:
-        keys.append(np.digitize(contexts.hold_s, HOLD_BINS_S)[:, None])
-    _, first, of_frame = np.unique(np.hstack(keys), axis=0, return_index=True,
-                                   return_inverse=True)
+def group_states(contexts: Sequence[FrameContext]) -> States:
+    """One state per distinct (rounded inputs, loading direction, hold bin) of the frames."""
+    actuation = np.array([c.actuation for c in contexts], dtype=float)
+    loading = np.array([c.loading for c in contexts], dtype=np.int64)
+    hold = np.array([c.hold_s for c in contexts], dtype=float)
+    keys = np.hstack([np.round(actuation / ACTUATION_TOLERANCE).astype(np.int64), loading,
+                      np.digitize(hold, HOLD_BINS_S)[:, None]])
+    _, first, of_frame = np.unique(keys, axis=0, return_index=True, return_inverse=True)
     of_frame = of_frame.ravel()
     count = len(first)
-    hold = np.bincount(of_frame, weights=contexts.hold_s, minlength=count) / np.bincount(
+    mean_hold = np.bincount(of_frame, weights=hold, minlength=count) / np.bincount(
         of_frame, minlength=count)
-    return States(contexts.actuation[first], contexts.direction[first], hold, of_frame)
+    return States(actuation[first], loading[first], mean_hold, of_frame)
 
 
 def trajectory_segments(states: States, recordings: np.ndarray) -> np.ndarray:
@@ -95,7 +67,7 @@ def trajectory_segments(states: States, recordings: np.ndarray) -> np.ndarray:
     cuts = np.flatnonzero((np.diff(of_frame) != 0) | (np.diff(recordings) != 0)) + 1
     starts = np.r_[0, cuts]
     count = min(MAX_SEGMENTS, len(starts))
-    # pick `count` run starts nearest to evenly spaced frame positions
+    # the run starts nearest to evenly spaced frame positions
     targets = np.linspace(0, t, count, endpoint=False)
     chosen = np.unique(starts[np.abs(starts[:, None] - targets[None]).argmin(axis=0)])
     return np.searchsorted(chosen, np.arange(t), side="right") - 1

@@ -1,0 +1,190 @@
+"""Nonlinear refit of the best screened candidates: full FE solves with the effect.
+
+The screening's first-order model ranks every hypothesis; the few best are refitted on the
+exact model: each state solved again with the effects (warm-started from its nominal
+equilibrium of the accurate model, diagnosis.solves), the camera effects applied, and the
+residuals measured again (each point re-associated with the moved surface). Gauss-Newton
+steps use the first-order model's Jacobian at the current values with these exact residuals
+(a chord method: it converges to the exact model's least squares, at the first-order model's
+rate), each step kept only when the exact residual falls.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from softforce_cli.diagnosis.basis import Basis
+from softforce_cli.diagnosis.fitting import (
+    Candidate,
+    _linear_step,
+    node_offsets,
+    shift_jacobian,
+)
+from softforce_cli.diagnosis.residuals import Field, measure
+from softforce_cli.diagnosis.solves import SETTINGS, StateSolutions
+from softforce_cli.diagnosis.states import States
+from softforce_cli.errors import SolverError
+from softforce_cli.fem.cables import CableInputs
+from softforce_cli.fem.statics import solve_equilibrium
+from softforce_cli.model.effect_physics import fe_model_with_effects
+from softforce_cli.model.effects import (
+    FrameContext,
+    effective_actuation,
+    effects_of_kind,
+    observed_points_robot,
+)
+
+# Gauss-Newton steps of the refit after the exact evaluation at the screened values: the
+# screening's values are within a few percent for effects of the size diagnosis looks for
+# (docs/diagnosis.md), and each step costs a P2 solve of every affected state (5-15 s each
+# on a loaded 2-core machine).
+REFIT_STEPS = 1
+# A step smaller than this share of a parameter's screening range ends the refit.
+REFIT_TOLERANCE = 1e-3
+
+
+@dataclass(frozen=True, eq=False)
+class Refit:
+    """A candidate on the exact model: values (k,), the exact residual entries there, the
+    first-order Jacobian (E, k) at them, the predicted mesh nodes (S, n, 3) and the FE
+    solves it took."""
+
+    candidate: Candidate
+    values: np.ndarray
+    field: Field
+    jacobian: np.ndarray
+    predicted_mm: np.ndarray
+    solves: int
+
+
+@dataclass(frozen=True, eq=False)
+class ExactModel:
+    """Everything an exact evaluation needs."""
+
+    solutions: StateSolutions
+    states: States
+    contexts: tuple[FrameContext, ...]
+    points_mm: list[np.ndarray]
+    basis: Basis
+
+    def predict(self, candidate: Candidate, values: np.ndarray) -> tuple[np.ndarray, int]:
+        """(S, n, 3) predicted mesh nodes with the candidate's effects, and the solves done."""
+        solutions = self.solutions
+        robot = solutions.robot
+        n = robot.mesh.node_count
+        effects = candidate.effects(values)
+        physics = effects_of_kind(effects, "physics")
+        cables = [spec.name for spec in robot.cable_specs]
+        effective = effective_actuation(effects, self.contexts, cables)
+        first = np.unique(self.states.of_frame, return_index=True)[1]
+        per_state = effective[first]
+        predicted = solutions.predicted_mm.copy()
+        solves = 0
+        creep = any(e.name == "viscoelastic_creep" for e in physics)
+        shared = fe_model_with_effects(robot, physics) if physics and not creep else None
+        controls = tuple(spec.control for spec in robot.cable_specs)
+        for s in range(solutions.count):
+            moved = not np.allclose(per_state[s], solutions.actuation[s])
+            if not physics and not moved:
+                continue
+            model = shared
+            if creep:
+                context = self.contexts[first[s]]
+                context = FrameContext(context.time_s, context.actuation, context.loading,
+                                       float(self.states.hold_s[s]))
+                model = fe_model_with_effects(robot, physics, context)
+            elif model is None:
+                model = robot.nominal_fe_model
+            start = solutions.first_order(s, _column_changes(
+                candidate, values, float(self.states.hold_s[s]),
+                dict(zip(cables, per_state[s] - solutions.actuation[s], strict=True))))
+            solution = solve_equilibrium(model, CableInputs(controls, per_state[s]),
+                                         start_mm=start, settings=SETTINGS)
+            predicted[s] = solution.positions_mm[:n]
+            solves += 1
+        sensor = effects_of_kind(effects, "sensor")
+        if sensor:
+            shape = predicted.shape
+            predicted = observed_points_robot(predicted.reshape(-1, 3), sensor,
+                                              self.basis.robot_from_camera).reshape(shape)
+        return predicted, solves
+
+    def field(self, predicted_mm: np.ndarray) -> Field:
+        robot = self.solutions.robot
+        return measure(self.points_mm, predicted_mm, self.states.of_frame,
+                       robot.mesh.surface_nodes, robot.mesh.surface_faces)
+
+
+def _column_changes(candidate: Candidate, values: np.ndarray, hold_s: float,
+                    input_changes: dict[str, float]) -> dict[str, float]:
+    """{sensitivity column: change} that moves a state to the candidate to first order."""
+    changes = {f"cable.{name}": change for name, change in input_changes.items()}
+    for hypothesis, part in zip(candidate.hypotheses, candidate.split(values), strict=True):
+        v = dict(zip(hypothesis.free, part, strict=True))
+        name = hypothesis.name
+        if name == "gravity":
+            changes.update({"gravity.scale": v["scale"] - 1.0,
+                            "gravity.tilt_x_deg": v["tilt_x_deg"],
+                            "gravity.tilt_y_deg": v["tilt_y_deg"]})
+        elif name == "stiffness_scale":
+            changes["stiffness"] = v["scale"] - 1.0
+        elif name == "regional_stiffness":
+            changes[f"region.{hypothesis.target}"] = v["scale"] - 1.0
+        elif name == "material_nonlinearity":
+            changes["blend"] = v["blend"]
+        elif name == "compliant_base":
+            changes["base_compliance"] = v["compliance_mm_per_n"]
+        elif name == "viscoelastic_creep":
+            changes["stiffness"] = -v["relaxation"] * (
+                1.0 - np.exp(-hold_s / v["time_constant_s"]))
+    return changes
+
+
+def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: bool,
+          stop_requested: Callable[[], bool] = lambda: False) -> Refit:
+    """Gauss-Newton on the exact model from the screening's values `start` (relative: with
+    the static offsets per node, diagnosis.fitting)."""
+    values = np.clip(np.asarray(start, dtype=float), candidate.lower, candidate.upper)
+    predicted, solves = exact.predict(candidate, values)
+    field = exact.field(predicted)
+    jacobian = shift_jacobian(candidate, exact.basis.inputs_for(field), values)
+    span = candidate.upper - candidate.lower
+    for _ in range(REFIT_STEPS):
+        if stop_requested():
+            break
+        step = _step(field, jacobian, relative)
+        trial = np.clip(values + step, candidate.lower, candidate.upper)
+        if np.all(np.abs(trial - values) <= REFIT_TOLERANCE * span):
+            break
+        try:
+            moved, count = exact.predict(candidate, trial)
+        except SolverError:  # the step left the region Newton can follow from the start
+            break
+        solves += count
+        trial_field = exact.field(moved)
+        if _objective(trial_field, relative) >= _objective(field, relative):
+            break
+        values, predicted, field = trial, moved, trial_field
+        jacobian = shift_jacobian(candidate, exact.basis.inputs_for(field), values)
+    return Refit(candidate, values, field, jacobian, predicted, solves)
+
+
+def _step(field: Field, jacobian: np.ndarray, relative: bool) -> np.ndarray:
+    """(k,) Gauss-Newton step on the exact residuals (E,) with the Jacobian (E, k)."""
+    everything = np.ones(len(field.mean_mm), dtype=bool)
+    r = field.mean_mm
+    if relative:
+        jacobian = jacobian - node_offsets(jacobian, field, everything)
+        r = r - node_offsets(r, field, everything)
+    return _linear_step(Field(field.frame, field.node, r, field.weight), jacobian, everything)
+
+
+def _objective(field: Field, relative: bool) -> float:
+    """Point-weighted mean square of the residuals (less their static offsets: relative)."""
+    r = field.mean_mm
+    if relative:
+        r = r - node_offsets(r, field, np.ones(len(r), dtype=bool))
+    return float(np.sum(field.weight * r**2) / field.weight.sum())

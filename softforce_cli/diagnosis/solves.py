@@ -1,0 +1,207 @@
+"""The nominal FE prediction of every state: one equilibrium and one factorisation each.
+
+Per distinct actuation state s the *accurate* model A is solved once (warm-started from the
+previous state) and linearised once (one tangent factorisation, reused for every
+sensitivity in diagnosis.sensitivities). A robot with linear tetrahedra (P1) locks
+(docs/locking.md): under gravity alone it sags about 5 mm less than the locking-free body,
+and its response to a cable differs by 40% (a 6 mm pull: 1.5 mm RMS of 3.5 mm), in every
+recording. That is discretisation, not missing physics: neither its prediction nor its
+sensitivities can be trusted to tell physics apart. So the accurate model of a P1 robot is
+the same mesh with quadratic elements (P2), and the P1 model is solved too, only to measure
+how much of the mismatch the mesh alone makes (the *mesh correction* x_P2 - x_P1, reported
+in the evidence). A robot with P2 or P2-P0 elements is its own accurate model.
+
+Solutions and sensitivity columns are cached on disk (SolveCache), keyed by the model's
+definition and the inputs: a second diagnosis of the same robot (another recording with the
+same states, a rerun with --force) solves nothing again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from io import BytesIO
+from pathlib import Path
+
+import numpy as np
+
+from softforce_cli.diagnosis.sensitivities import ColumnSet, state_columns
+from softforce_cli.fem.cables import CableInputs
+from softforce_cli.fem.compliance import linearize
+from softforce_cli.fem.model import FEModel
+from softforce_cli.fem.statics import Equilibrium, SolverSettings, solve_equilibrium
+from softforce_cli.io.atomic import atomic_write_bytes
+from softforce_cli.model.robot import Robot, with_element
+
+# Diagnosis compares shapes at the camera's resolution (~1 mm): a force residual of 1e-4 N
+# moves a node about 1e-4 mm on the Diamond (nodal stiffness ~E h ~ 1 N/mm), far below it.
+SETTINGS = SolverSettings(step_tolerance_mm=1e-4, force_tolerance_n=1e-4)
+# Bump when what a cached solve means changes.
+CACHE_VERSION = 1
+Progress = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class SolveCache:
+    """Equilibria on disk under `folder` (None: no cache), one .npz per model and inputs."""
+
+    folder: Path | None
+
+    def key(self, model: FEModel, inputs: CableInputs) -> str:
+        digest = hashlib.sha256(f"{CACHE_VERSION}{SETTINGS}{model.material}"
+                                f"{model.element_name}{inputs.control}".encode())
+        for array in (model.rest_nodes_mm, model.tets, model.fixed_nodes, model.node_masses_kg,
+                      model.gravity_mm_s2, np.asarray(inputs.values, dtype=float)):
+            digest.update(np.ascontiguousarray(array).tobytes())
+        for cable in model.cables:
+            for array in (cable.path.node_indices, cable.path.weights, cable.pull_point_mm):
+                digest.update(np.ascontiguousarray(array).tobytes())
+        return digest.hexdigest()[:32]
+
+    def load(self, key: str) -> dict[str, np.ndarray] | None:
+        path = None if self.folder is None else self.folder / f"{key}.npz"
+        if path is None or not path.is_file():
+            return None
+        try:
+            with np.load(path) as stored:
+                return {name: stored[name] for name in stored.files}
+        except (OSError, ValueError, EOFError):  # a damaged entry is computed again
+            return None
+
+    def store(self, key: str, **arrays: np.ndarray) -> None:
+        if self.folder is None:
+            return
+        self.folder.mkdir(parents=True, exist_ok=True)
+        buffer = BytesIO()
+        np.savez(buffer, **arrays)
+        atomic_write_bytes(self.folder / f"{key}.npz", buffer.getvalue(), force=True)
+
+    def solve(self, model: FEModel, inputs: CableInputs,
+              start_mm: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """(positions (N, 3) mm, cable tensions (a,) N) of the nominal `model` at `inputs`."""
+        key = self.key(model, inputs)
+        stored = self.load(key)
+        if stored is not None and {"positions_mm", "tensions_n"} <= set(stored):
+            return stored["positions_mm"], stored["tensions_n"]
+        solution: Equilibrium = solve_equilibrium(model, inputs, start_mm=start_mm,
+                                                  settings=SETTINGS)
+        self.store(key, positions_mm=solution.positions_mm, tensions_n=solution.cable_tensions_n)
+        return solution.positions_mm, solution.cable_tensions_n
+
+
+@dataclass(frozen=True, eq=False)
+class StateSolutions:
+    """The nominal prediction of every state (S states, n mesh nodes, N FE nodes of A).
+
+    robot        : the accurate robot A (the given one, or it with P2 elements).
+    given        : the element of the robot file ("p1", "p2", "p2-p0").
+    actuation    : (S, a) commanded inputs per state.
+    positions_mm : (S, N, 3) equilibria of A.
+    tensions_n   : (S, a) cable tensions of A.
+    columns      : (S, C, N, 3) sensitivity columns at every FE node (mm per unit).
+    given_mm     : (S, n, 3) the given robot's own equilibria when it is not A (P1), else
+                   None.
+    """
+
+    robot: Robot
+    given: str
+    actuation: np.ndarray
+    positions_mm: np.ndarray
+    tensions_n: np.ndarray
+    columns: np.ndarray
+    given_mm: np.ndarray | None
+    column_set: ColumnSet
+
+    @property
+    def count(self) -> int:
+        return len(self.actuation)
+
+    @property
+    def predicted_mm(self) -> np.ndarray:
+        """(S, n, 3) the nominal prediction at the mesh nodes."""
+        return self.positions_mm[:, :self.robot.mesh.node_count]
+
+    @property
+    def mesh_columns(self) -> np.ndarray:
+        """(S, C, n, 3) the sensitivity columns at the mesh nodes."""
+        return self.columns[:, :, :self.robot.mesh.node_count]
+
+    def first_order(self, s: int, changes: dict[str, float]) -> np.ndarray:
+        """(N, 3) state s's equilibrium moved to first order by {column name: change}: a
+        Newton start that needs two iterations fewer than the equilibrium itself."""
+        moved = self.positions_mm[s].copy()
+        for name, change in changes.items():
+            if change:
+                moved += change * self.columns[s, self.column_set.index(name)]
+        return moved
+
+
+def accurate_robot(robot: Robot) -> Robot:
+    """The robot diagnosis predicts with: P2 elements on the same mesh for a P1 robot."""
+    return with_element(robot, "p2") if robot.element_name == "p1" else robot
+
+
+def solve_states(robot: Robot, actuation: np.ndarray, cache: SolveCache, columns: ColumnSet,
+                 progress: Progress | None = None,
+                 stop_requested: Callable[[], bool] = lambda: False) -> StateSolutions | None:
+    """Solve and linearise the accurate model at every state (S, a), its sensitivity columns,
+    and the given P1 model's equilibria.
+
+    States are solved nearest-neighbour first from the least actuated, each warm-started from
+    its predecessor. Returns None when stop_requested() turns true between states.
+    """
+    accurate = accurate_robot(robot)
+    model = accurate.nominal_fe_model
+    n = robot.mesh.node_count
+    given = robot.nominal_fe_model if accurate is not robot else None
+    order = _chain(np.asarray(actuation, dtype=float))
+    positions = np.empty((len(order), model.node_count, 3))
+    tensions = np.empty((len(order), len(model.cables)))
+    sensitivity = np.empty((len(order), len(columns.names), model.node_count, 3))
+    cables = [columns.index(f"cable.{spec.name}") for spec in robot.cable_specs]
+    given_mm = None if given is None else np.empty((len(order), n, 3))
+    previous = previous_given = None
+    factor = None
+    for done, s in enumerate(order):
+        if stop_requested():
+            return None
+        inputs = accurate.cable_inputs(actuation[s])
+        start = None
+        if previous is not None:  # the previous state moved to these inputs to first order
+            start = positions[previous] + np.einsum(
+                "a,ani->ni", actuation[s] - actuation[previous], sensitivity[previous, cables])
+        positions[s], tensions[s] = cache.solve(model, inputs, start)
+        previous = s
+        key = f"{cache.key(model, inputs)}-columns-" + hashlib.sha256(
+            " ".join(columns.names).encode()).hexdigest()[:12]
+        stored = cache.load(key)
+        if stored is not None and stored.get("columns", np.empty(0)).shape == sensitivity[s].shape:
+            sensitivity[s] = stored["columns"]
+        else:
+            lin = linearize(model, positions[s], tensions[s], factorization=factor)
+            factor = lin.factorization  # the next state refactorises its symbolic analysis
+            sensitivity[s] = state_columns(accurate, columns, lin, tensions[s])
+            cache.store(key, columns=sensitivity[s])
+        if given is not None:
+            given_mm[s], _ = cache.solve(given, robot.cable_inputs(actuation[s]),
+                                         previous_given)
+            previous_given = given_mm[s]
+        if progress is not None:
+            progress(done + 1, len(order))
+    return StateSolutions(accurate, robot.element_name, np.asarray(actuation, dtype=float),
+                          positions, tensions, sensitivity, given_mm, columns)
+
+
+def _chain(actuation: np.ndarray) -> list[int]:
+    """State indices from the least actuated, each next the nearest unvisited one."""
+    remaining = list(range(len(actuation)))
+    current = int(np.argmin(np.abs(actuation).sum(axis=1)))
+    order = []
+    while remaining:
+        remaining.remove(current)
+        order.append(current)
+        if remaining:
+            distance = np.abs(actuation[remaining] - actuation[current]).sum(axis=1)
+            current = remaining[int(np.argmin(distance))]
+    return order
