@@ -86,9 +86,14 @@ class ExactModel:
         creep = any(e.name == "viscoelastic_creep" for e in physics)
         shared = fe_model_with_effects(robot, physics) if physics and not creep else None
         controls = tuple(spec.control for spec in robot.cable_specs)
+        done: dict[bytes, int] = {}  # states of equal inputs share a solve (without creep)
         for s in range(solutions.count):
             moved = not np.allclose(per_state[s], solutions.actuation[s])
             if not physics and not moved:
+                continue
+            twin = done.setdefault(per_state[s].tobytes(), s) if not creep else s
+            if twin != s:
+                predicted[s] = predicted[twin]
                 continue
             model = shared
             if creep:

@@ -162,35 +162,51 @@ def solve_states(robot: Robot, actuation: np.ndarray, cache: SolveCache, columns
     cables = [columns.index(f"cable.{spec.name}") for spec in robot.cable_specs]
     given_mm = None if given is None else np.empty((len(order), n, 3))
     previous = previous_given = None
-    factor = None
+    factor_box: list = [None]  # the factorisation whose symbolic analysis states reuse
+    solved: dict[bytes, int] = {}  # states of equal inputs (loading, hold) share one solve
     for done, s in enumerate(order):
         if stop_requested():
             return None
-        inputs = accurate.cable_inputs(actuation[s])
-        start = None
-        if previous is not None:  # the previous state moved to these inputs to first order
-            start = positions[previous] + np.einsum(
-                "a,ani->ni", actuation[s] - actuation[previous], sensitivity[previous, cables])
-        positions[s], tensions[s] = cache.solve(model, inputs, start)
-        previous = s
-        key = f"{cache.key(model, inputs)}-columns-" + hashlib.sha256(
-            " ".join(columns.names).encode()).hexdigest()[:12]
-        stored = cache.load(key)
-        if stored is not None and stored.get("columns", np.empty(0)).shape == sensitivity[s].shape:
-            sensitivity[s] = stored["columns"]
+        twin = solved.setdefault(np.asarray(actuation[s], dtype=float).tobytes(), s)
+        if twin != s:
+            positions[s], tensions[s], sensitivity[s] = (positions[twin], tensions[twin],
+                                                         sensitivity[twin])
+            if given is not None:
+                given_mm[s] = given_mm[twin]
         else:
-            lin = linearize(model, positions[s], tensions[s], factorization=factor)
-            factor = lin.factorization  # the next state refactorises its symbolic analysis
-            sensitivity[s] = state_columns(accurate, columns, lin, tensions[s])
-            cache.store(key, columns=sensitivity[s])
-        if given is not None:
-            given_mm[s], _ = cache.solve(given, robot.cable_inputs(actuation[s]),
-                                         previous_given)
-            previous_given = given_mm[s]
+            _solve_state(s, previous, accurate, model, actuation, cache, columns, cables,
+                         positions, tensions, sensitivity, factor_box)
+            previous = s
+            if given is not None:
+                given_mm[s], _ = cache.solve(given, robot.cable_inputs(actuation[s]),
+                                             previous_given)
+                previous_given = given_mm[s]
         if progress is not None:
             progress(done + 1, len(order))
     return StateSolutions(accurate, robot.element_name, np.asarray(actuation, dtype=float),
                           positions, tensions, sensitivity, given_mm, columns)
+
+
+def _solve_state(s, previous, accurate, model, actuation, cache, columns, cables, positions,
+                 tensions, sensitivity, factor_box) -> None:
+    """Equilibrium and sensitivity columns of state s (from the disk cache when there),
+    warm-started from state `previous` moved to first order."""
+    inputs = accurate.cable_inputs(actuation[s])
+    start = None
+    if previous is not None:
+        start = positions[previous] + np.einsum(
+            "a,ani->ni", actuation[s] - actuation[previous], sensitivity[previous, cables])
+    positions[s], tensions[s] = cache.solve(model, inputs, start)
+    key = f"{cache.key(model, inputs)}-columns-" + hashlib.sha256(
+        " ".join(columns.names).encode()).hexdigest()[:12]
+    stored = cache.load(key)
+    if stored is not None and stored.get("columns", np.empty(0)).shape == sensitivity[s].shape:
+        sensitivity[s] = stored["columns"]
+        return
+    lin = linearize(model, positions[s], tensions[s], factorization=factor_box[0])
+    factor_box[0] = lin.factorization  # the next state refactorises its symbolic analysis
+    sensitivity[s] = state_columns(accurate, columns, lin, tensions[s])
+    cache.store(key, columns=sensitivity[s])
 
 
 def _chain(actuation: np.ndarray) -> list[int]:
