@@ -17,7 +17,8 @@ from softforce_cli.fem.allocator import keep_freed_memory
 
 # Each module exposes run() -> list[BenchRow].
 MODULES = ["benchmarks.bench_fem", "benchmarks.bench_calibration", "benchmarks.bench_recording",
-           "benchmarks.bench_memory", "benchmarks.bench_reduced", "benchmarks.bench_sense"]
+           "benchmarks.bench_memory", "benchmarks.bench_reduced", "benchmarks.bench_sense",
+           "benchmarks.bench_diagnose"]
 
 
 def machine() -> str:

@@ -1,0 +1,126 @@
+"""`softforce diagnose` end to end on the shipped recordings: a concealed 3 mm slack of the
+north cable (its truth file read only here) is named, located, fitted within 10% and halves
+the held-out residual; the clean control answers `none`; bad input is one line."""
+
+import json
+import tomllib
+
+import pytest
+
+from softforce_cli.model.robot import load_robot
+from tests.cli_runner import assert_one_line_error, softforce
+from tests.conftest import ROOT, SAMPLE_ROBOT
+from tests.test_sense_cli import pose_calibration
+
+RECORDINGS = ROOT / "sample_data" / "recordings"
+SLACK = RECORDINGS / "diagnose_slack.mcap"
+CLEAN = RECORDINGS / "diagnose_clean.mcap"
+OUTPUTS = ("diagnosis.json", "robot.fitted.toml", "residual_map.png", "signature.png")
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    """One FE cache for the module: the clean control's states are the slack recording's."""
+    return tmp_path_factory.mktemp("cache")
+
+
+@pytest.fixture(scope="module")
+def slack_run(tmp_path_factory, cache):
+    folder = tmp_path_factory.mktemp("slack")
+    calibration = pose_calibration(SLACK.with_suffix("").with_suffix(".truth.json"), folder)
+    result = softforce("diagnose", SLACK, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
+                       "-o", folder / "out", "--cache", cache)
+    return result, folder / "out", calibration
+
+
+def test_the_concealed_slack_is_named_located_fitted_and_halves_the_residual(slack_run):
+    result, out, _ = slack_run
+    assert result.returncode == 0, result.stderr
+    truth = json.loads(SLACK.with_suffix("").with_suffix(".truth.json").read_text())
+    (concealed,) = truth["concealed_effects"]
+    assert (concealed["name"], concealed["target"]) == ("cable_slack", "north")
+    true_slack = concealed["parameters"]["slack_mm"]["value"]
+    document = json.loads((out / "diagnosis.json").read_text())
+    assert document["verdict"] == "cable_slack"
+    first = document["effects"][0]
+    assert first["name"] == "cable_slack" and first["target"] == "north"
+    assert first["evidence"]["selected"] and first["evidence"]["refitted"]
+    slack = first["parameters"]["slack_mm"]
+    assert slack["unit"] == "mm"
+    assert slack["value"] == pytest.approx(true_slack, rel=0.1)
+    assert slack["ci95"][0] < slack["value"] < slack["ci95"][1]
+    assert first["heldout_rms_after_mm"] <= 0.5 * first["heldout_rms_before_mm"]
+    assert document["location"]["cables"] == ["north"]
+    assert document["location"]["regions"][0] == "north"
+
+
+def test_diagnosis_json_follows_the_contract(slack_run):
+    _, out, _ = slack_run
+    for name in OUTPUTS:
+        assert (out / name).stat().st_size > 0
+    document = json.loads((out / "diagnosis.json").read_text())
+    assert {"verdict", "noise_floor_mm", "effects", "location"} <= set(document)
+    assert 0 < document["noise_floor_mm"] < 1.0
+    assert set(document["location"]) >= {"regions", "cables", "nodes"}
+    names = {"gravity", "stiffness_scale", "regional_stiffness", "material_nonlinearity",
+             "cable_slack", "cable_friction", "compliant_base", "viscoelastic_creep",
+             "support_contact", "depth_bias", "extrinsic_offset"}
+    for effect in document["effects"]:
+        assert effect["name"] in names
+        assert {"name", "parameters", "heldout_rms_before_mm", "heldout_rms_after_mm",
+                "evidence"} <= set(effect)
+        for parameter in effect["parameters"].values():
+            assert {"value", "ci95", "unit"} <= set(parameter)
+    assert not document["interrupted"] and document["stage"] == "done"
+    # the P1 robot's locking is measured and said, not taken for physics
+    evidence = document["evidence"]
+    assert evidence["element"] == "p1" and evidence["prediction_element"] == "p2"
+    assert evidence["rms_given_element_mm"] > 2 * evidence["rms_nominal_mm"]
+
+
+def test_the_fitted_robot_loads_and_carries_the_slack(slack_run, tmp_path):
+    _, out, _ = slack_run
+    fitted = out / "robot.fitted.toml"
+    robot = load_robot(fitted)
+    (effect,) = robot.effects
+    assert (effect.name, effect.target) == ("cable_slack", "north")
+    assert effect["slack_mm"] == pytest.approx(3.0, rel=0.1)
+    # a 2 mm command stays inside the slack: the body does not move
+    assert robot.cable_inputs([2.0, 0.0, 0.0, 0.0]).values[0] == 0.0
+    solved = softforce("model", "solve", fitted, "--actuation", "6,0,0,0", "-o",
+                       tmp_path / "deformed.vtu", "--json")
+    assert solved.returncode == 0, solved.stderr
+    assert tomllib.loads(fitted.read_text())["mesh"]["path"].endswith("diamond_coarse.vtu")
+
+
+def test_the_clean_control_answers_none(tmp_path, cache):
+    calibration = pose_calibration(CLEAN.with_suffix("").with_suffix(".truth.json"), tmp_path)
+    result = softforce("diagnose", CLEAN, "--robot", SAMPLE_ROBOT, "--calibration",
+                       calibration, "-o", tmp_path / "out", "--cache", cache)
+    assert result.returncode == 0, result.stderr
+    document = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
+    assert document["verdict"] == "none", document["effects"][:3]
+    assert "[[effect]]" not in (tmp_path / "out" / "robot.fitted.toml").read_text()
+
+
+def test_bad_input_is_one_line(slack_run, tmp_path):
+    _, out, calibration = slack_run
+    missing = softforce("diagnose", tmp_path / "none.mcap", "--robot", SAMPLE_ROBOT,
+                        "--calibration", calibration, "-o", tmp_path / "a")
+    assert_one_line_error(missing, "none.mcap")
+    again = softforce("diagnose", SLACK, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
+                      "-o", out)
+    assert_one_line_error(again, "--force")
+    # a calibration for another camera: the robot is nowhere in its view
+    elsewhere = tmp_path / "elsewhere.json"
+    elsewhere.write_text(json.dumps({"rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],
+                                     "translation_mm": [2000.0, 0.0, 0.0]}))
+    away = softforce("diagnose", SLACK, "--robot", SAMPLE_ROBOT, "--calibration", elsewhere,
+                     "-o", tmp_path / "b")
+    assert_one_line_error(away, "check the calibration")
+    # a recording whose actuation never changes cannot tell physics from the model
+    weights = RECORDINGS / "weights.mcap"
+    still = softforce("diagnose", weights, "--robot", SAMPLE_ROBOT, "--calibration",
+                      pose_calibration(weights.with_suffix("").with_suffix(".truth.json"),
+                                       tmp_path), "-o", tmp_path / "c", "--no-cache")
+    assert_one_line_error(still, "actuation never changes")
