@@ -124,3 +124,27 @@ def test_bad_input_is_one_line(slack_run, tmp_path):
                       pose_calibration(weights.with_suffix("").with_suffix(".truth.json"),
                                        tmp_path), "-o", tmp_path / "c", "--no-cache")
     assert_one_line_error(still, "actuation never changes")
+
+
+def test_an_interrupted_run_keeps_what_it_reached(slack_run, cache, tmp_path):
+    """A stop requested during the screening (Ctrl-C under deferred_interrupt) leaves a
+    diagnosis.json marked interrupted, with the stage reached and the effects screened so
+    far, and no fitted robot."""
+    from softforce_cli.diagnosis.run import DiagnoseInputs, run_diagnosis
+
+    _, _, calibration = slack_run
+    screened = []
+
+    def stage(name, done, total):
+        if name == "screening":
+            screened.append(done)
+
+    inputs = DiagnoseInputs((SLACK,), SAMPLE_ROBOT, calibration, tmp_path / "out",
+                            cache=cache)
+    diagnosis = run_diagnosis(inputs, stage, lambda: len(screened) > 3)
+    assert diagnosis.interrupted and diagnosis.verdict is None
+    document = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
+    assert document["interrupted"] and document["stage"] == "screening"
+    assert document["verdict"] is None
+    assert len(document["effects"]) == 4  # the hypotheses screened before the stop
+    assert not (tmp_path / "out" / "robot.fitted.toml").exists()

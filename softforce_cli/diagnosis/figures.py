@@ -7,9 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
+from softforce_cli.diagnosis.fitting import node_offsets
 from softforce_cli.diagnosis.pipeline import Diagnosis, node_systematic_mm
 from softforce_cli.diagnosis.residuals import Field
 from softforce_cli.io.atomic import atomic_path
+from softforce_cli.model.effects import frame_contexts
 
 
 def save_residual_map(diagnosis: Diagnosis, path: Path, force: bool) -> None:
@@ -45,16 +47,20 @@ def save_residual_map(diagnosis: Diagnosis, path: Path, force: bool) -> None:
     plt.close(figure)
 
 
-def _per_frame_rms(field: Field, frames: int) -> np.ndarray:
+def _per_frame_rms(field: Field, frames: int, relative: bool) -> np.ndarray:
+    """(t,) RMS residual of each frame (less the static baseline per node: relative)."""
+    values = field.mean_mm
+    if relative:
+        values = values - node_offsets(values, field, np.ones(len(values), dtype=bool))
     weight = np.bincount(field.frame, weights=field.weight, minlength=frames)
-    squares = np.bincount(field.frame, weights=field.weight * field.mean_mm**2,
-                          minlength=frames)
+    squares = np.bincount(field.frame, weights=field.weight * values**2, minlength=frames)
     return np.sqrt(np.divide(squares, weight, out=np.zeros(frames), where=weight > 0))
 
 
 def save_signature_plot(diagnosis: Diagnosis, path: Path, force: bool) -> None:
     """Per-frame RMS residual (nominal and fitted) against actuation amplitude, loading
-    direction, hold time and mean depth, with the noise floor."""
+    direction, hold time and mean depth, with the noise floor; relative to the static
+    baseline per node unless the selected effect was accepted on absolute residuals."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -62,12 +68,13 @@ def save_signature_plot(diagnosis: Diagnosis, path: Path, force: bool) -> None:
 
     frames = diagnosis.observations.frames
     amplitude = np.array([np.abs(f.actuation).sum() for f in frames])
-    states = diagnosis.states
-    loading = states.loading[states.of_frame].sum(axis=1)
-    hold = states.hold_s[states.of_frame]
+    contexts = frame_contexts(diagnosis.observations.times_s, diagnosis.observations.actuations)
+    loading = np.array([c.loading.sum() for c in contexts])
+    hold = np.array([c.hold_s for c in contexts])
     depth = np.array([f.depth_mm.mean() for f in frames])
-    before = _per_frame_rms(diagnosis.nominal, len(frames))
-    after = _per_frame_rms(diagnosis.final_field, len(frames))
+    relative = not diagnosis.selected or diagnosis.selected[0].screened.relative
+    before = _per_frame_rms(diagnosis.nominal, len(frames), relative)
+    after = _per_frame_rms(diagnosis.final_field, len(frames), relative)
     figure, axes = plt.subplots(1, 4, figsize=(14, 3.5), sharey=True)
     for axis, x, label in zip(axes, (amplitude, loading, hold, depth),
                               ("actuation sum (mm)", "loading direction (sum of signs)",
@@ -76,7 +83,8 @@ def save_signature_plot(diagnosis: Diagnosis, path: Path, force: bool) -> None:
         axis.scatter(x, after, s=10, label="fitted")
         axis.axhline(diagnosis.noise_floor_mm, color="grey", lw=0.8, ls="--")
         axis.set_xlabel(label)
-    axes[0].set_ylabel("frame RMS residual (mm)")
+    axes[0].set_ylabel("frame RMS residual (mm)" + (", static baseline removed" if relative
+                                                     else ""))
     axes[0].legend()
     figure.suptitle(f"verdict: {diagnosis.verdict} (dashed: noise floor)")
     figure.tight_layout()
