@@ -117,7 +117,7 @@ def test_bad_input_is_one_line(slack_run, tmp_path):
                                      "translation_mm": [2000.0, 0.0, 0.0]}))
     away = softforce("diagnose", SLACK, "--robot", SAMPLE_ROBOT, "--calibration", elsewhere,
                      "-o", tmp_path / "b")
-    assert_one_line_error(away, "check the calibration")
+    assert_one_line_error(away, "calibration belongs to this camera")
     # a recording whose actuation never changes cannot tell physics from the model
     weights = RECORDINGS / "weights.mcap"
     still = softforce("diagnose", weights, "--robot", SAMPLE_ROBOT, "--calibration",

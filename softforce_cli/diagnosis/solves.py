@@ -34,11 +34,13 @@ from softforce_cli.fem.statics import Equilibrium, SolverSettings, solve_equilib
 from softforce_cli.io.atomic import atomic_write_bytes
 from softforce_cli.model.robot import Robot, with_element
 
-# Diagnosis compares shapes at the camera's resolution (~1 mm): a force residual of 1e-4 N
-# moves a node about 1e-4 mm on the Diamond (nodal stiffness ~E h ~ 1 N/mm), far below it.
-SETTINGS = SolverSettings(step_tolerance_mm=1e-4, force_tolerance_n=1e-4)
+# Diagnosis compares shapes against a noise floor of ~0.3 mm: a force residual of 1e-3 N
+# moves a node about 1e-3 mm on the Diamond (nodal stiffness ~E h ~ 1 N/mm), and Newton's
+# last step being under 0.01 mm leaves the position known to ~1e-4 mm (quadratic
+# convergence); the solver's defaults (1e-8 N) cost a P2 state two more iterations.
+SETTINGS = SolverSettings(step_tolerance_mm=1e-2, force_tolerance_n=1e-3)
 # Bump when what a cached solve means changes.
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 Progress = Callable[[int, int], None]
 
 
