@@ -19,7 +19,7 @@ Sources (docs/virtual_camera.md has the details):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -74,6 +74,15 @@ class D415Noise:
     stereo_occlusion: bool = True
     dropout_probability: float = 0.0
     color_sigma: float = 2.0
+
+    def scaled(self, depth_noise_scale: float) -> D415Noise:
+        """These parameters with the axial depth noise multiplied by `depth_noise_scale` (>= 0):
+        sigma_z is proportional to subpixel_px, so only that changes; holes, quantisation and
+        colour noise stay, and the random draws keep their order (one seed, the same holes).
+        A scale of 1 leaves every value, and so every draw, bit-identical."""
+        if depth_noise_scale < 0:
+            raise ValueError(f"depth noise scale must be >= 0, got {depth_noise_scale}")
+        return replace(self, subpixel_px=self.subpixel_px * depth_noise_scale)
 
 
 def axial_sigma_mm(depth_mm: np.ndarray, focal_px: float, noise: D415Noise) -> np.ndarray:

@@ -45,6 +45,7 @@ _KEYS = {
         "look_at_mm",
         "up_hint",
         "noise",
+        "noise_scale",
     },
     "scene": {"table_z_mm", "robot_rgb", "probe_rgb", "weight_rgb", "table_rgb"},
     "markers": {"publish", "sigma_mm"},
@@ -90,6 +91,9 @@ class CameraSpec:
     look_at_mm: tuple[float, float, float]
     up_hint: tuple[float, float, float]
     noise: bool
+    # multiplies the D415's axial depth noise (sim.depth_noise.D415Noise.scaled): 0 none,
+    # 1 the D415's, 2 twice
+    noise_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -157,6 +161,9 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
         raise ScenarioError(f"{path}: no [[frame]]; a scenario needs at least one")
     camera = data.get("camera", {})
     check.keys(camera, "camera", "[camera]")
+    if camera.get("noise") is False and "noise_scale" in camera:
+        raise ScenarioError(f"{path}: camera.noise_scale scales the sensor noise that "
+                            "noise = false turns off; remove one of them")
     scene = data.get("scene", {})
     check.keys(scene, "scene", "[scene]")
     markers = data.get("markers", {})
@@ -183,6 +190,7 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
             look_at_mm=check.vector(camera.get("look_at_mm", [0, 0, 40]), "camera.look_at_mm"),
             up_hint=check.vector(camera.get("up_hint", [0, 1, 0]), "camera.up_hint"),
             noise=bool(camera.get("noise", True)),
+            noise_scale=check.non_negative(camera.get("noise_scale", 1.0), "camera.noise_scale"),
         ),
         scene=SceneSpec(
             table_z_mm=check.number(scene.get("table_z_mm", -37.5), "scene.table_z_mm"),

@@ -45,11 +45,11 @@ from softforce_cli.model.effects import (
 from softforce_cli.model.regions import region_names
 from softforce_cli.model.robot import Robot
 from softforce_cli.sim.camera_pose import invert_pose, look_at, transform_points
-from softforce_cli.sim.depth_noise import apply_d415
+from softforce_cli.sim.depth_noise import D415Noise, apply_d415
 from softforce_cli.sim.ground_truth import TruthState, solve_frame, truth_robot
 from softforce_cli.sim.props import probe_surface, weight_surface
 from softforce_cli.sim.render import RenderedView, SceneSurface, render, table_surface
-from softforce_cli.sim.scenario import Scenario, load_scenario
+from softforce_cli.sim.scenario import FrameSpec, Scenario, load_scenario
 
 # The table is a square this big around the robot, large enough to fill the D415's view.
 TABLE_HALF_SIZE_MM = 600.0
@@ -164,8 +164,21 @@ def frame_plan(scenario: Scenario, cable_names: tuple[str, ...]) -> FramePlan:
     return FramePlan(spec_index, times, commanded, effective, contexts)
 
 
-def run_simulation(simulation: Simulation, progress: Progress | None = None) -> SimulationResult:
-    """Solve, render and write every frame, then the truth file. Ctrl-C keeps what is done."""
+# Solved truth states by what determines them: a scenario frame (its effective actuation
+# and loads) and the creep modulus factor. Valid for one truth robot (file, law, physics
+# effects): a study reusing the states across scenarios that differ only in their camera
+# (noise, resolution, pose) passes the same dict to each run_simulation.
+TruthCache = dict[tuple[FrameSpec, float], TruthState]
+
+
+def run_simulation(
+    simulation: Simulation, progress: Progress | None = None, states: TruthCache | None = None
+) -> SimulationResult:
+    """Solve, render and write every frame, then the truth file. Ctrl-C keeps what is done.
+
+    `states`, when given, supplies truth states solved before (for the same truth robot) and
+    receives those solved now, so the expensive solve is not repeated across recordings.
+    """
     truth_frames: list[dict] = []
     frames = _frames(
         simulation.scenario,
@@ -174,6 +187,7 @@ def run_simulation(simulation: Simulation, progress: Progress | None = None) -> 
         simulation.world_from_cam,
         truth_frames,
         progress,
+        {} if states is None else states,
     )
     result = write_recording(
         frames,
@@ -198,10 +212,14 @@ def run_simulation(simulation: Simulation, progress: Progress | None = None) -> 
 
 
 def simulate(
-    scenario_path: Path, output: Path, force: bool = False, progress: Progress | None = None
+    scenario_path: Path,
+    output: Path,
+    force: bool = False,
+    progress: Progress | None = None,
+    states: TruthCache | None = None,
 ) -> SimulationResult:
     """prepare_simulation, then run_simulation."""
-    return run_simulation(prepare_simulation(scenario_path, output, force), progress)
+    return run_simulation(prepare_simulation(scenario_path, output, force), progress, states)
 
 
 def _frames(
@@ -211,8 +229,10 @@ def _frames(
     world_from_cam: np.ndarray,
     truth_frames: list[dict],
     progress: Progress | None,
+    states: TruthCache,
 ) -> Iterator[RgbdFrame]:
     rng = np.random.default_rng(scenario.seed)
+    noise = D415Noise().scaled(scenario.camera.noise_scale) if scenario.camera.noise else None
     # the camera truly stands where the concealed extrinsic offset puts it
     actual_world_from_cam = world_from_cam @ camera_offset(scenario.effects).as_matrix()
     cam_from_world = invert_pose(actual_world_from_cam)
@@ -228,18 +248,20 @@ def _frames(
         modulus = creep_factor(scenario.effects, context.hold_s) if creep else 1.0
         key = (int(spec_index), tuple(plan.effective[index]), modulus)
         if key != solved_key:  # a new [[frame]], or the effects changed the state in a hold
-            model = fe_model_with_effects(robot, robot.effects, context) if creep else None
-            state = solve_frame(
-                robot, dataclasses.replace(frame, actuation=tuple(plan.effective[index])),
-                None if state is None else state.equilibrium, model,
-            )
+            effective = dataclasses.replace(frame, actuation=tuple(plan.effective[index]))
+            if (effective, modulus) not in states:
+                model = fe_model_with_effects(robot, robot.effects, context) if creep else None
+                states[effective, modulus] = solve_frame(
+                    robot, effective, None if state is None else state.equilibrium, model
+                )
+            state = states[effective, modulus]
             view = _biased(render(_scene(scenario, robot, state), intrinsics,
                                   actual_world_from_cam), depth_scale(scenario.effects))
             markers_robot = robot.marker_points.positions(state.equilibrium.positions_mm)
             markers_cam = (transform_points(cam_from_world, markers_robot)
                            if len(markers_robot) else markers_robot)
             solved_key = key
-        depth, color = _sensor(view, intrinsics, rng, scenario.camera.noise)
+        depth, color = _sensor(view, intrinsics, rng, noise)
         observed = markers_cam + scenario.marker_sigma_mm * rng.standard_normal(
             markers_cam.shape
         )
@@ -293,10 +315,12 @@ def _scene(scenario: Scenario, robot: Robot, state: TruthState) -> list[SceneSur
 
 
 def _sensor(
-    view: RenderedView, intrinsics: CameraIntrinsics, rng: np.random.Generator, noise: bool
+    view: RenderedView, intrinsics: CameraIntrinsics, rng: np.random.Generator,
+    noise: D415Noise | None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    if noise:
-        return apply_d415(view, intrinsics, rng)
+    """The D415's images of a view; None: ideal depth (rounded to mm) and colours."""
+    if noise is not None:
+        return apply_d415(view, intrinsics, rng, noise)
     return np.rint(view.depth_mm).astype(np.uint16), view.color
 
 
@@ -382,6 +406,7 @@ def _truth_document(
             "actual_rotation": _rounded(actual[:3, :3], 12),
             "actual_translation_mm": _rounded(actual[:3, 3], 9),
             "noise": scenario.camera.noise,
+            "noise_scale": scenario.camera.noise_scale,
             "marker_sigma_mm": scenario.marker_sigma_mm,
         },
         # what the recording hides (docs/effects.md): only tests and studies read it

@@ -1,0 +1,203 @@
+"""Depth noise and feature count against sensing error and frame rate (issue 8's sweep).
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/study_sweep.py   # ~15 min on 2 shared cores
+
+The sample probes scenario (sample_data/scenarios/probes.toml: the locking-free P2 truth on
+its own mesh, Neo-Hookean; unloaded, 0.15 N, 0.25 N, then 0.25 N + 0.2 N on two bars) is
+recorded once per depth noise level (`[camera] noise_scale` in NOISE_SCALES), each loaded
+state held HOLD_FRAMES frames. The truth states do not depend on the camera, so they are
+solved once and reused for every level (sim.simulate's truth-state cache, kept on disk). The
+estimator is sample_data/diamond/diamond_p2.toml (the coarse P2 robot) with `[features]
+count` in FEATURE_COUNTS, sensing with `--tare 1 --updates 6` and the truth's camera pose
+(a pose-only calibration, no material calibration), scored by estimation.truth_errors.
+
+Writes, under out/study_sweep/ (recordings, robot variants, sense outputs, cached), the
+results to results.json, and the figure docs/figures/sensing_sweep.png, which
+docs/sensing.md ("Noise and feature-count sweep") quotes. Reruns reuse the recordings and
+the sense runs already done (--resense runs them again).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pickle
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from softforce_cli.estimation.session import run_sensing  # noqa: E402
+from softforce_cli.estimation.setup import SenseInputs, prepare_sensing  # noqa: E402
+from softforce_cli.estimation.truth_errors import compare_with_truth, read_truth  # noqa: E402
+from softforce_cli.io.atomic import atomic_write_bytes, atomic_write_text  # noqa: E402
+from softforce_cli.sim.simulate import TruthCache, simulate  # noqa: E402
+
+OUT = ROOT / "out" / "study_sweep"
+FIGURE = ROOT / "docs" / "figures" / "sensing_sweep.png"
+SCENARIO = ROOT / "sample_data" / "scenarios" / "probes.toml"
+ESTIMATOR = ROOT / "sample_data" / "diamond" / "diamond_p2.toml"
+NOISE_SCALES = (0.0, 0.5, 1.0, 2.0)
+FEATURE_COUNTS = (25, 51, 101)
+TARE_FRAMES = 1
+UPDATES = 6
+# Each loaded state is held this many frames (fresh sensor noise on each): P2's estimate
+# settles over the first frames of a hold (docs/sensing.md), and more frames give the error
+# statistics more than one sample per state. 1 + 3 * 3 = 10 frames, 12 true contacts.
+HOLD_FRAMES = 3
+
+
+def scenario_text(noise_scale: float, width: int, height: int) -> str:
+    """probes.toml with its truth robot path made absolute, the camera's resolution and
+    noise_scale set, and each loaded state held HOLD_FRAMES frames."""
+    text = SCENARIO.read_text().replace('robot = "../', f'robot = "{SCENARIO.parent.parent}/')
+    head, *frames = text.split("\n[[frame]]")
+    camera = f"[camera]\nwidth = {width}\nheight = {height}\nnoise_scale = {noise_scale}\n"
+    head = head[: head.index("[camera]")] + camera
+    held = [frames[0]] + [f.replace("\nactuation", f"\nrepeat = {HOLD_FRAMES}\nactuation", 1)
+                          for f in frames[1:]]
+    return "\n[[frame]]".join([head, *held])
+
+
+def recordings(width: int, height: int) -> dict[float, Path]:
+    """One recording per noise level; the truth states solved for the first are kept in
+    truth_states.pkl and reused for the others (and by later runs)."""
+    OUT.mkdir(parents=True, exist_ok=True)
+    cache_file = OUT / "truth_states.pkl"
+    states: TruthCache = pickle.loads(cache_file.read_bytes()) if cache_file.exists() else {}
+    paths = {}
+    for scale in NOISE_SCALES:
+        path = OUT / f"probes_{width}x{height}_noise{scale:g}.mcap"
+        if not path.exists():
+            scenario = path.with_suffix(".toml")
+            scenario.write_text(scenario_text(scale, width, height))
+            began, solved = time.perf_counter(), len(states)
+            simulate(scenario, path, force=True, states=states)
+            print(f"simulated {path.name} in {time.perf_counter() - began:.0f} s "
+                  f"({len(states) - solved} truth states solved)", file=sys.stderr)
+            if len(states) > solved:
+                atomic_write_bytes(cache_file, pickle.dumps(states), force=True)
+        paths[scale] = path
+    return paths
+
+
+def robot_variant(count: int) -> Path:
+    """diamond_p2.toml with `[features] count` set and its mesh path made absolute."""
+    text = ESTIMATOR.read_text()
+    text = text.replace('path = "diamond_coarse.vtu"',
+                        f'path = "{ESTIMATOR.parent / "diamond_coarse.vtu"}"')
+    assert "count = 51" in text, "diamond_p2.toml no longer sets [features] count = 51"
+    path = OUT / f"diamond_p2_features{count}.toml"
+    path.write_text(text.replace("count = 51", f"count = {count}"))
+    return path
+
+
+def truth_pose(recording: Path) -> Path:
+    """The camera pose of a simulated recording's truth as a pose-only calibration."""
+    camera = read_truth(recording.with_suffix(".truth.json"))["camera"]
+    path = OUT / "pose.json"
+    path.write_text(json.dumps({"rotation": camera["rotation"],
+                                "translation_mm": camera["translation_mm"]}))
+    return path
+
+
+def sense_and_score(recording: Path, robot: Path, pose: Path, name: str) -> dict:
+    """Sense a recording, compare it with its truth: the error summary, frame times."""
+    folder = OUT / name
+    inputs = SenseInputs(recording=recording, robot=robot, calibration=pose, output=folder,
+                         force=True, tare_frames=TARE_FRAMES,
+                         overrides={"estimation.updates_per_frame": UPDATES})
+    prepared = prepare_sensing(inputs)
+    cpu = time.process_time()
+    run_sensing(prepared.frames, prepared.sensor, folder, prepared.header, force=True)
+    cpu_s = time.process_time() - cpu
+    document = json.loads((folder / "sense.json").read_text())
+    comparison = compare_with_truth(document, read_truth(recording.with_suffix(".truth.json")))
+    ok = [sum(f["timings_ms"].values()) for f in document["frames"] if f["status"] == "ok"]
+    return {**comparison.summary(),
+            "frame_ms_median": round(float(np.median(ok)), 1),
+            "fps": round(1e3 / float(np.median(ok)), 3),
+            "cpu_ms_per_frame": round(1e3 * cpu_s / len(document["frames"]), 1),
+            "relinearizations": prepared.sensor.relinearizations}
+
+
+def plot(results: list[dict], path: Path) -> None:
+    """Location and intensity errors against noise, one line per feature count; the frame
+    rate against the feature count."""
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
+    for count in FEATURE_COUNTS:
+        rows = sorted((r for r in results if r["features"] == count),
+                      key=lambda r: r["noise_scale"])
+        scales = [r["noise_scale"] for r in rows]
+        axes[0].plot(scales, [r["location_error_median_mm"] for r in rows], "o-",
+                     label=f"{count} features")
+        line, = axes[1].plot(scales, [100 * r["intensity_error_median"] for r in rows], "o-",
+                             label=f"{count} features, median")
+        axes[1].plot(scales, [100 * r["intensity_error_p90"] for r in rows], "s--",
+                     color=line.get_color(), alpha=0.6, label=f"{count} features, 90th pct")
+    for scale in NOISE_SCALES:
+        rows = sorted((r for r in results if r["noise_scale"] == scale),
+                      key=lambda r: r["features"])
+        axes[2].plot([r["features"] for r in rows], [r["fps"] for r in rows], "o-",
+                     label=f"noise x{scale:g}")
+    axes[0].set(xlabel="depth noise scale (1 = D415)", ylabel="location error, median (mm)",
+                title="Where")
+    axes[1].set(xlabel="depth noise scale (1 = D415)", ylabel="intensity error (%)",
+                title="How hard")
+    axes[2].set(xlabel="feature points", ylabel="frames per second (median frame)",
+                title="Frame rate", xticks=list(FEATURE_COUNTS))
+    for axis in axes:
+        axis.grid(alpha=0.3)
+        axis.legend(fontsize=7)
+    fig.suptitle("Coarse P2 estimator vs the locking-free truth (probes, --tare 1 --updates 6)",
+                 fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--width", type=int, default=640)
+    parser.add_argument("--height", type=int, default=480)
+    parser.add_argument("--resense", action="store_true",
+                        help="sense again even where a result is cached")
+    args = parser.parse_args()
+    paths = recordings(args.width, args.height)
+    pose = truth_pose(paths[1.0])
+    cache_file = OUT / f"sense_results_{args.width}x{args.height}.json"
+    cached = {} if args.resense or not cache_file.exists() else json.loads(
+        cache_file.read_text())
+    for count in FEATURE_COUNTS:
+        robot = robot_variant(count)
+        for scale, recording in paths.items():
+            key = f"features{count}_noise{scale:g}"
+            if key not in cached:
+                began = time.perf_counter()
+                cached[key] = {"features": count, "noise_scale": scale,
+                               **sense_and_score(recording, robot, pose, key)}
+                print(f"{key}: {time.perf_counter() - began:.0f} s {cached[key]}",
+                      file=sys.stderr)
+                atomic_write_text(cache_file, json.dumps(cached, indent=1), force=True)
+    results = list(cached.values())
+    document = {"resolution": [args.width, args.height], "estimator": str(ESTIMATOR),
+                "scenario": str(SCENARIO), "hold_frames": HOLD_FRAMES,
+                "tare_frames": TARE_FRAMES, "updates": UPDATES, "results": results}
+    atomic_write_text(OUT / "results.json", json.dumps(document, indent=1), force=True)
+    plot(results, FIGURE)
+    print(json.dumps(document, indent=1))
+
+
+if __name__ == "__main__":
+    main()
