@@ -204,10 +204,14 @@ def _best_per_effect(screened: list[Screened]) -> list[Screened]:
 def _final(exact: ExactModel, screened: Screened, nominal: Field, segments: np.ndarray,
            floor: float, n_eff: float, frames: int, stop_requested,
            baseline: HeldOut | None = None) -> Final:
-    fitted = refit(exact, screened.candidate, screened.values, screened.relative,
+    def half_widths(field: Field, jacobian: np.ndarray, values: np.ndarray) -> np.ndarray:
+        interval = confidence_intervals(field, jacobian, values, n_eff, frames)
+        return 0.5 * (interval[:, 1] - interval[:, 0])
+
+    fitted = refit(exact, screened.candidate, screened.values, screened.relative, half_widths,
                    stop_requested)
     inputs = exact.basis.inputs_for(fitted.field)
-    result = held_out(fitted.candidate, inputs, fitted.field, segments, fitted.values,
+    result = held_out(fitted.candidate, inputs, fitted.field, segments, fitted.evaluated,
                       screened.relative, jacobian=fitted.jacobian, nominal=nominal)
     ci = confidence_intervals(fitted.field, fitted.jacobian, fitted.values, n_eff, frames)
     return Final(screened, fitted, result, ci, clear_improvement(result, floor, baseline))

@@ -48,9 +48,10 @@ REFIT_TOLERANCE = 1e-3
 
 @dataclass(frozen=True, eq=False)
 class Refit:
-    """A candidate on the exact model: values (k,), the exact residual entries there, the
-    first-order Jacobian (E, k) at them, the predicted mesh nodes (S, n, 3) and the FE
-    solves it took."""
+    """A candidate on the exact model: the fitted values (k,); the exact residual entries,
+    first-order Jacobian (E, k) and predicted mesh nodes (S, n, 3) at `evaluated` (k,) (the
+    last exact evaluation: `values` is one Gauss-Newton step from it when that step was
+    within half the 95% interval, else `values` itself); and the FE solves it took."""
 
     candidate: Candidate
     values: np.ndarray
@@ -58,6 +59,7 @@ class Refit:
     jacobian: np.ndarray
     predicted_mm: np.ndarray
     solves: int
+    evaluated: np.ndarray
 
 
 @dataclass(frozen=True, eq=False)
@@ -149,9 +151,12 @@ def _column_changes(candidate: Candidate, values: np.ndarray, hold_s: float,
 
 
 def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: bool,
+          half_widths: Callable[[Field, np.ndarray, np.ndarray], np.ndarray],
           stop_requested: Callable[[], bool] = lambda: False) -> Refit:
     """Gauss-Newton on the exact model from the screening's values `start` (relative: with
-    the static offsets per node, diagnosis.fitting)."""
+    the static offsets per node, diagnosis.fitting). half_widths(field, jacobian, values)
+    gives the 95% half-widths (k,): a step within half of them is taken on the first-order
+    model, without solving the states again (the data cannot tell the two values apart)."""
     values = np.clip(np.asarray(start, dtype=float), candidate.lower, candidate.upper)
     predicted, solves = exact.predict(candidate, values)
     field = exact.field(predicted)
@@ -162,8 +167,9 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
             break
         step = _step(field, jacobian, relative)
         trial = np.clip(values + step, candidate.lower, candidate.upper)
-        if np.all(np.abs(trial - values) <= REFIT_TOLERANCE * span):
-            break
+        if np.all(np.abs(trial - values) <= np.maximum(
+                REFIT_TOLERANCE * span, 0.5 * half_widths(field, jacobian, values))):
+            return Refit(candidate, trial, field, jacobian, predicted, solves, values)
         try:
             moved, count = exact.predict(candidate, trial)
         except SolverError:  # the step left the region Newton can follow from the start
@@ -174,7 +180,7 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
             break
         values, predicted, field = trial, moved, trial_field
         jacobian = shift_jacobian(candidate, exact.basis.inputs_for(field), values)
-    return Refit(candidate, values, field, jacobian, predicted, solves)
+    return Refit(candidate, values, field, jacobian, predicted, solves, values)
 
 
 def _step(field: Field, jacobian: np.ndarray, relative: bool) -> np.ndarray:
