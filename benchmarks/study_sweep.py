@@ -5,8 +5,9 @@
 The sample probes scenario (sample_data/scenarios/probes.toml: the locking-free P2 truth on
 its own mesh, Neo-Hookean; unloaded, 0.15 N, 0.25 N, then 0.25 N + 0.2 N on two bars) is
 recorded once per depth noise level (`[camera] noise_scale` in NOISE_SCALES), each loaded
-state held HOLD_FRAMES frames. The truth states do not depend on the camera, so they are
-solved once and reused for every level (sim.simulate's truth-state cache, kept on disk). The
+state held HOLD_FRAMES frames, then the robot unloaded again (phantoms). The truth states do
+not depend on the camera, so they are solved once and reused for every level
+(sim.simulate's truth-state cache, kept on disk). The
 estimator is sample_data/diamond/diamond_p2.toml (the coarse P2 robot) with `[features]
 count` in FEATURE_COUNTS, sensing with `--tare 1 --updates 6` and the truth's camera pose
 (a pose-only calibration, no material calibration), scored by estimation.truth_errors.
@@ -52,20 +53,23 @@ TARE_FRAMES = 1
 UPDATES = 6
 # Each loaded state is held this many frames (fresh sensor noise on each): P2's estimate
 # settles over the first frames of a hold (docs/sensing.md), and more frames give the error
-# statistics more than one sample per state. 1 + 3 * 3 = 10 frames, 12 true contacts.
+# statistics more than one sample per state. With the final unloaded hold, 1 + 4 * 3 = 13
+# frames: 12 true contacts, 3 frames without contact.
 HOLD_FRAMES = 3
 
 
 def scenario_text(noise_scale: float, width: int, height: int) -> str:
     """probes.toml with its truth robot path made absolute, the camera's resolution and
-    noise_scale set, and each loaded state held HOLD_FRAMES frames."""
+    noise_scale set, each loaded state held HOLD_FRAMES frames, and the unloaded first
+    state held again at the end (frames without contact, for phantoms: its truth state is
+    the first one, reused)."""
     text = SCENARIO.read_text().replace('robot = "../', f'robot = "{SCENARIO.parent.parent}/')
     head, *frames = text.split("\n[[frame]]")
     camera = f"[camera]\nwidth = {width}\nheight = {height}\nnoise_scale = {noise_scale}\n"
     head = head[: head.index("[camera]")] + camera
-    held = [frames[0]] + [f.replace("\nactuation", f"\nrepeat = {HOLD_FRAMES}\nactuation", 1)
-                          for f in frames[1:]]
-    return "\n[[frame]]".join([head, *held])
+    held = [f.replace("\nactuation", f"\nrepeat = {HOLD_FRAMES}\nactuation", 1)
+            for f in [*frames[1:], frames[0]]]
+    return "\n[[frame]]".join([head, frames[0], *held])
 
 
 def recordings(width: int, height: int) -> dict[float, Path]:

@@ -165,9 +165,9 @@ def frame_plan(scenario: Scenario, cable_names: tuple[str, ...]) -> FramePlan:
 
 
 # Solved truth states by what determines them: a scenario frame (its effective actuation
-# and loads) and the creep modulus factor. Valid for one truth robot (file, law, physics
-# effects): a study reusing the states across scenarios that differ only in their camera
-# (noise, resolution, pose) passes the same dict to each run_simulation.
+# and loads; repeat set to 1) and the creep modulus factor. Valid for one truth robot (file,
+# law, physics effects): a study reusing the states across scenarios that differ only in
+# their camera (noise, resolution, pose) passes the same dict to each run_simulation.
 TruthCache = dict[tuple[FrameSpec, float], TruthState]
 
 
@@ -248,7 +248,9 @@ def _frames(
         modulus = creep_factor(scenario.effects, context.hold_s) if creep else 1.0
         key = (int(spec_index), tuple(plan.effective[index]), modulus)
         if key != solved_key:  # a new [[frame]], or the effects changed the state in a hold
-            effective = dataclasses.replace(frame, actuation=tuple(plan.effective[index]))
+            # repeat=1: how long a state is held does not change it, so holds share it
+            effective = dataclasses.replace(frame, actuation=tuple(plan.effective[index]),
+                                            repeat=1)
             if (effective, modulus) not in states:
                 model = fe_model_with_effects(robot, robot.effects, context) if creep else None
                 states[effective, modulus] = solve_frame(
