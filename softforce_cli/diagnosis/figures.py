@@ -14,9 +14,23 @@ from softforce_cli.io.atomic import atomic_path
 from softforce_cli.model.effects import frame_contexts
 
 
+def _node_values(field: Field, node_count: int, relative: bool) -> tuple[np.ndarray,
+                                                                        np.ndarray]:
+    """(n,) per mesh node: the RMS over frames of the residual less its static baseline
+    (relative), or the mean residual (absolute); and (n,) the points behind it."""
+    if not relative:
+        return node_systematic_mm(field, node_count)
+    varying = field.mean_mm - node_offsets(field.mean_mm, field,
+                                           np.ones(len(field.mean_mm), dtype=bool))
+    squared = Field(field.frame, field.node, varying**2, field.weight)
+    mean_square, weight = node_systematic_mm(squared, node_count)
+    return np.sqrt(mean_square), weight
+
+
 def save_residual_map(diagnosis: Diagnosis, path: Path, force: bool) -> None:
-    """Mean residual per surface node over all frames (colour, mm) on the rest shape: the
-    nominal model and the model with the selected effects."""
+    """The residual per surface node (colour, mm) on the rest shape, nominal and with the
+    selected effects: what changes across frames (the RMS less the static baseline per
+    node), or the mean residual when the selected effect was accepted on absolute ones."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -24,24 +38,28 @@ def save_residual_map(diagnosis: Diagnosis, path: Path, force: bool) -> None:
 
     mesh = diagnosis.robot.mesh
     nodes = mesh.nodes_mm
-    before, seen = node_systematic_mm(diagnosis.nominal, mesh.node_count)
-    after, seen_after = node_systematic_mm(diagnosis.final_field, mesh.node_count)
+    relative = not diagnosis.selected or diagnosis.selected[0].screened.relative
+    before, seen = _node_values(diagnosis.nominal, mesh.node_count, relative)
+    after, seen_after = _node_values(diagnosis.final_field, mesh.node_count, relative)
     limit = max(float(np.abs(before[seen > 0]).max(initial=0.0)), 1e-3)
+    colours = dict(cmap="viridis", vmin=0.0, vmax=limit) if relative else dict(
+        cmap="coolwarm", vmin=-limit, vmax=limit)
     figure = plt.figure(figsize=(10, 4.5))
     fitted = ", ".join(f.candidate.label for f in diagnosis.selected) or "no effect"
     for i, (values, weight, title) in enumerate(((before, seen, "nominal model"),
                                                  (after, seen_after, f"with {fitted}"))):
         axis = figure.add_subplot(1, 2, i + 1, projection="3d")
         shown = weight > 0
-        art = axis.scatter(*nodes[shown].T, c=values[shown], cmap="coolwarm", vmin=-limit,
-                           vmax=limit, s=4)
+        art = axis.scatter(*nodes[shown].T, c=values[shown], s=4, **colours)
         rms = np.sqrt(np.average(values[shown] ** 2, weights=weight[shown])) if shown.any() \
             else 0.0
-        axis.set_title(f"{title}: mean residual RMS {rms:.2f} mm", fontsize=9)
+        axis.set_title(f"{title}: RMS {rms:.2f} mm", fontsize=9)
         axis.set_xlabel("x (mm)")
         axis.set_ylabel("y (mm)")
         axis.set_zlabel("z (mm)")
-    figure.colorbar(art, ax=figure.axes, label="mean normal residual (mm), + outside model")
+    label = ("residual across frames, static baseline removed (RMS, mm)" if relative
+             else "mean normal residual (mm), + outside model")
+    figure.colorbar(art, ax=figure.axes, label=label)
     with atomic_path(path, force) as temporary:
         figure.savefig(temporary, dpi=110, format="png")
     plt.close(figure)
