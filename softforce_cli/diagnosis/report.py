@@ -159,5 +159,8 @@ def fitted_robot_toml(robot_file: Path, diagnosis: Diagnosis, output_dir: Path) 
     effects = [e for f in diagnosis.selected for e in f.candidate.effects(f.values)]
     if not effects:
         return text
+    # the file's own [[effect]] tables were left out of the diagnosis: the fitted ones replace
+    # them (an effect table holds single-line keys up to the next table header)
+    text = re.sub(r"(?ms)^\[\[effect\]\]\n.*?(?=^\[|\Z)", "", text)
     header = f"\n# fitted by softforce diagnose {__version__} (diagnosis.json)\n"
     return text.rstrip("\n") + "\n" + header + "\n".join(effect_toml(e) for e in effects)

@@ -16,7 +16,7 @@ from softforce_cli.diagnosis.report import diagnosis_document, fitted_robot_toml
 from softforce_cli.diagnosis.solves import SolveCache
 from softforce_cli.estimation.session import FrameRange
 from softforce_cli.io.atomic import atomic_write_text, check_writable
-from softforce_cli.model.robot import load_robot
+from softforce_cli.model.robot import load_robot, robot_with_effects
 
 OUTPUTS = ("diagnosis.json", "robot.fitted.toml", "residual_map.png", "signature.png")
 # A recording needs this many usable frames: two states with repeats at the least.
@@ -57,7 +57,10 @@ def run_diagnosis(inputs: DiagnoseInputs, stage: Stage,
         frame_range = FrameRange.parse(inputs.frames)
     except ValueError as error:
         raise DiagnosisError(str(error)) from error
-    robot = load_robot(inputs.robot)
+    # the diagnosis compares the robot file's nominal model with the recordings: effects the
+    # file already carries (a robot.fitted.toml) are left out, and said so
+    given = load_robot(inputs.robot)
+    robot = robot_with_effects(given, ()) if given.effects else given
     calibration = read_calibration(inputs.calibration)
     if calibration.robot_name and calibration.robot_name != robot.name:
         raise DiagnosisError(f"{inputs.calibration} was made for robot "
@@ -80,6 +83,8 @@ def run_diagnosis(inputs: DiagnoseInputs, stage: Stage,
     else:
         diagnosis = diagnose_observations(robot, observations, SolveCache(inputs.cache), stage,
                                           stop_requested)
+        if given.effects and diagnosis.verdict is not None:
+            diagnosis.evidence["robot_file_effects_left_out"] = [e.label for e in given.effects]
     write_outputs(inputs, diagnosis, stage)
     return diagnosis
 
