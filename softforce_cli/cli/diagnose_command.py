@@ -70,7 +70,8 @@ def _summary(diagnosis) -> None:
     rows += [s for s in diagnosis.screened[:6] if s.key not in {f.screened.key for f in rows}]
     for item in rows[:8]:
         entry = effect_entry(item, floor, item in diagnosis.selected)
-        values = ", ".join(f"{k}={v['value']:.3g}" for k, v in entry["parameters"].items())
+        shown = [f"{k}={v['value']:.3g}" for k, v in entry["parameters"].items()]
+        values = ", ".join(shown[:2]) + (f" (+{len(shown) - 2})" if len(shown) > 2 else "")
         accepted = entry["evidence"]["accepted"]
         table.add_row(entry["label"], values, f"{entry['heldout_rms_before_mm']:.3f}",
                       f"{entry['heldout_rms_after_mm']:.3f}",
