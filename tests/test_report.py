@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from softforce_cli.report import terminal
+from softforce_cli.cli import report_terminal as terminal
 from softforce_cli.report.build import build_report
 from softforce_cli.report.export import available_tables, select_columns, table_text
 from softforce_cli.report.loading import ReportError, load_run

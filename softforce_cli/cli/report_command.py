@@ -77,7 +77,7 @@ def report(
 
 
 def _print_summary(run, result) -> None:
-    from softforce_cli.report import terminal
+    from softforce_cli.cli import report_terminal as terminal
 
     for note in result.notes:
         stderr.print(f"[yellow]note:[/] {note}", soft_wrap=True)
