@@ -38,7 +38,9 @@ def diagnose(
     inputs = DiagnoseInputs(tuple(recordings), robot, calibration, output, frames, force, folder)
     columns = (TextColumn("{task.description:>14}"), BarColumn(), MofNCompleteColumn(),
                TimeElapsedColumn())
-    with deferred_interrupt() as stop, Progress(*columns, console=stderr) as progress:
+    # transient: a bad input found mid-run leaves its one line alone on stderr
+    with deferred_interrupt() as stop, Progress(*columns, console=stderr,
+                                                transient=True) as progress:
         tasks: dict[str, int] = {}
 
         def stage(name: str, done: int, total: int | None) -> None:
