@@ -1,6 +1,6 @@
 """Depth noise and feature count against sensing error and frame rate (issue 8's sweep).
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/study_sweep.py   # ~15 min on 2 shared cores
+    OPENBLAS_NUM_THREADS=1 python benchmarks/study_sweep.py   # ~12 min on 2 shared cores
 
 The sample probes scenario (sample_data/scenarios/probes.toml: the locking-free P2 truth on
 its own mesh, Neo-Hookean; unloaded, 0.15 N, 0.25 N, then 0.25 N + 0.2 N on two bars) is

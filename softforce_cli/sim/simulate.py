@@ -177,7 +177,9 @@ def run_simulation(
     """Solve, render and write every frame, then the truth file. Ctrl-C keeps what is done.
 
     `states`, when given, supplies truth states solved before (for the same truth robot) and
-    receives those solved now, so the expensive solve is not repeated across recordings.
+    receives those solved now, so the expensive solve is not repeated across recordings (nor
+    for a state the scenario returns to). Without it every change of state is solved from
+    the previous one, as always.
     """
     truth_frames: list[dict] = []
     frames = _frames(
@@ -187,7 +189,7 @@ def run_simulation(
         simulation.world_from_cam,
         truth_frames,
         progress,
-        {} if states is None else states,
+        states,
     )
     result = write_recording(
         frames,
@@ -229,7 +231,7 @@ def _frames(
     world_from_cam: np.ndarray,
     truth_frames: list[dict],
     progress: Progress | None,
-    states: TruthCache,
+    states: TruthCache | None,
 ) -> Iterator[RgbdFrame]:
     rng = np.random.default_rng(scenario.seed)
     noise = D415Noise().scaled(scenario.camera.noise_scale) if scenario.camera.noise else None
@@ -251,12 +253,15 @@ def _frames(
             # repeat=1: how long a state is held does not change it, so holds share it
             effective = dataclasses.replace(frame, actuation=tuple(plan.effective[index]),
                                             repeat=1)
-            if (effective, modulus) not in states:
+            if states is not None and (effective, modulus) in states:
+                state = states[effective, modulus]
+            else:
                 model = fe_model_with_effects(robot, robot.effects, context) if creep else None
-                states[effective, modulus] = solve_frame(
+                state = solve_frame(
                     robot, effective, None if state is None else state.equilibrium, model
                 )
-            state = states[effective, modulus]
+                if states is not None:
+                    states[effective, modulus] = state
             view = _biased(render(_scene(scenario, robot, state), intrinsics,
                                   actual_world_from_cam), depth_scale(scenario.effects))
             markers_robot = robot.marker_points.positions(state.equilibrium.positions_mm)
