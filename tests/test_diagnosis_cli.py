@@ -72,6 +72,14 @@ def test_diagnosis_json_follows_the_contract(slack_run):
         for parameter in effect["parameters"].values():
             assert {"value", "ci95", "unit"} <= set(parameter)
     assert not document["interrupted"] and document["stage"] == "done"
+    # every effect has a numeric interval, so `softforce report` reads the folder
+    for effect in document["effects"]:
+        for parameter in effect["parameters"].values():
+            low, high = parameter["ci95"]
+            assert low <= parameter["value"] <= high
+    table = softforce("report", out, "--format", "csv", "--table", "effects")
+    assert table.returncode == 0, table.stderr
+    assert table.stdout.splitlines()[1].startswith("cable_slack,north,slack_mm,")
     # the P1 robot's locking is measured and said, not taken for physics
     evidence = document["evidence"]
     assert evidence["element"] == "p1" and evidence["prediction_element"] == "p2"

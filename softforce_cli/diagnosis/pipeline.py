@@ -11,7 +11,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from softforce_cli.diagnosis.basis import Basis, build_basis
-from softforce_cli.diagnosis.fitting import Candidate, HeldOut, fit_values, held_out
+from softforce_cli.diagnosis.fitting import (
+    Candidate,
+    HeldOut,
+    fit_values,
+    held_out,
+    node_offsets,
+    shift_jacobian,
+)
 from softforce_cli.diagnosis.hypotheses import ABSOLUTE, hypotheses
 from softforce_cli.diagnosis.observations import DiagnosisError, Observations
 from softforce_cli.diagnosis.refit import ExactModel, Refit, refit
@@ -52,6 +59,7 @@ class Screened:
     values: np.ndarray
     heldout: HeldOut
     relative: bool
+    ci95: np.ndarray  # (k, 2) from the first-order model's Gauss-Newton covariance
 
     @property
     def key(self) -> tuple[str, bool]:
@@ -159,8 +167,10 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
             return result
         report("screening", i, len(tasks))
         values = fit_values(candidate, inputs, nominal, relative)
-        result.screened.append(Screened(candidate, values, held_out(
-            candidate, inputs, nominal, segments, values, relative), relative))
+        result.screened.append(Screened(
+            candidate, values, held_out(candidate, inputs, nominal, segments, values, relative),
+            relative, _first_order_ci(candidate, inputs, nominal, values, relative, n_eff,
+                                      frames)))
     report("screening", len(tasks), len(tasks))
     result.screened.sort(key=lambda s: -excess_share(s.heldout, floor))
     exact = ExactModel(solutions, states, contexts, points, basis)
@@ -191,6 +201,19 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
     _verdict(result, floor, basis, solutions, segments, n_eff)
     result.stage = "done"
     return result
+
+
+def _first_order_ci(candidate: Candidate, inputs, nominal: Field, values: np.ndarray,
+                    relative: bool, n_eff: float, frames: int) -> np.ndarray:
+    """(k, 2) 95% intervals of a screened fit (its first-order model's Jacobian)."""
+    jacobian = shift_jacobian(candidate, inputs, values)
+    left = nominal.mean_mm - candidate.shift(values, inputs)
+    if relative:
+        everything = np.ones(len(left), dtype=bool)
+        left = left - node_offsets(left, nominal, everything)
+        jacobian = jacobian - node_offsets(jacobian, nominal, everything)
+    field = Field(nominal.frame, nominal.node, left, nominal.weight)
+    return confidence_intervals(field, jacobian, values, n_eff, frames)
 
 
 def _best_per_effect(screened: list[Screened]) -> list[Screened]:
@@ -232,7 +255,9 @@ def _second(exact, result: Diagnosis, first: Final, inputs, nominal, segments, f
         start = np.concatenate([first.values, other.values])
         values = fit_values(pair, inputs, nominal, relative, start=start)
         pairs.append(Screened(pair, values, held_out(pair, inputs, nominal, segments, values,
-                                                     relative), relative))
+                                                     relative), relative,
+                              _first_order_ci(pair, inputs, nominal, values, relative, n_eff,
+                                              frames)))
     report("second effect", len(others), len(others))
     if not pairs or stop_requested():
         return None

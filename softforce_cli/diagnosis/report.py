@@ -17,6 +17,9 @@ from softforce_cli.diagnosis.selection import excess_share, explained_mm
 from softforce_cli.model.effects import EFFECTS, Effect, effect_toml
 
 FORMAT = "softforce.diagnosis"
+# JSON has no infinity: an interval bound at infinity (a base stiffness whose compliance
+# interval reaches 0, i.e. a rigid clamp) is written as this many units.
+INFINITE = 1e12
 MODES = {True: "relative to a static baseline per node", False: "absolute"}
 
 
@@ -24,21 +27,22 @@ def _finite(value: float) -> float | None:
     return round(float(value), 6) if math.isfinite(value) else None
 
 
+def _bounded(value: float) -> float:
+    return round(float(np.clip(value, -INFINITE, INFINITE)), 6)
+
+
 def _parameters(effect: Effect, free: tuple[str, ...], values: np.ndarray,
-                ci95: np.ndarray | None) -> dict[str, dict[str, Any]]:
+                ci95: np.ndarray) -> dict[str, dict[str, Any]]:
     """{name: {value, ci95, unit}} in the effect's own parameters (compliance -> stiffness)."""
     out = {}
-    for name, value, interval in zip(free, values, ci95 if ci95 is not None else
-                                     [None] * len(free), strict=True):
+    for name, value, interval in zip(free, values, ci95, strict=True):
         if name == "compliance_mm_per_n":  # reported as the spec's stiffness = 1 / compliance
             name = "stiffness_n_per_mm"
             value = effect[name]
-            if interval is not None:
-                interval = [1.0 / interval[1] if interval[1] > 0 else math.inf,
-                            1.0 / interval[0] if interval[0] > 0 else math.inf]
+            interval = [1.0 / interval[1] if interval[1] > 0 else math.inf,
+                        1.0 / interval[0] if interval[0] > 0 else math.inf]
         spec = EFFECTS[effect.name].parameter(name)
-        out[name] = {"value": _finite(value),
-                     "ci95": None if interval is None else [_finite(v) for v in interval],
+        out[name] = {"value": _bounded(value), "ci95": [_bounded(v) for v in interval],
                      "unit": spec.unit}
     return out
 
@@ -48,14 +52,13 @@ def effect_entry(item: Final | Screened, floor_mm: float, selected: bool) -> dic
     screened = item.screened if isinstance(item, Final) else item
     candidate = screened.candidate
     values = item.values
-    ci = item.ci95 if isinstance(item, Final) else None
+    ci = item.ci95
     held = item.heldout
     effects = candidate.effects(values)
     parameters: dict[str, Any] = {}
     for hypothesis, effect, part, part_ci in zip(
             candidate.hypotheses, effects, candidate.split(values),
-            np.split(ci, np.cumsum(candidate.sizes)[:-1]) if ci is not None else
-            [None] * len(effects), strict=True):
+            np.split(ci, np.cumsum(candidate.sizes)[:-1]), strict=True):
         prefix = "" if len(effects) == 1 else f"{hypothesis.label}."
         parameters.update({prefix + k: v for k, v in _parameters(
             effect, hypothesis.free, part, part_ci).items()})
