@@ -131,6 +131,10 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
             f"{', '.join(observations.recordings)}: the actuation never changes, and a model "
             "cannot be told from its missing physics without it; record loading, unloading "
             "and holds of the cables")
+    if np.bincount(states.of_frame).max() < 2:
+        raise DiagnosisError(
+            f"{', '.join(observations.recordings)}: no input is held for two frames or more, "
+            "so the camera's noise floor cannot be measured; record holds between the moves")
     columns = column_set(robot)
     result.stage = "solves"
     solutions = solve_states(robot, states.actuation, cache, columns,
@@ -148,10 +152,6 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
         points, solutions.given_mm, states.of_frame, mesh.surface_nodes, mesh.surface_faces)
     result.nominal, result.uncorrected = nominal, uncorrected
     floor = noise_floor_mm(nominal, states.of_frame)
-    if not np.isfinite(floor):
-        raise DiagnosisError(
-            f"{', '.join(observations.recordings)}: no input is held for two frames or more, "
-            "so the camera's noise floor cannot be measured; record holds between the moves")
     result.noise_floor_mm = floor
     frames = len(observations.frames)
     recordings = np.array([f.recording for f in observations.frames])
