@@ -65,7 +65,9 @@ def truth_summary(truth: TruthReport) -> RenderableType:
 
 
 def diagnosis_summary(diagnosis: Diagnosis) -> RenderableType:
-    where = ", ".join(map(str, (*diagnosis.location.regions, *diagnosis.location.cables)))
+    location = diagnosis.location
+    where = "; ".join(f"{kind} {', '.join(map(str, names))}" for kind, names in
+                      (("regions", location.regions), ("cables", location.cables)) if names)
     head = Text(f"verdict: {diagnosis.verdict}" + (f" (at {where})" if where else "")
                 + f"; noise floor {diagnosis.noise_floor_mm:.3f} mm", style="bold")
     table = RichTable(title="effects, ranked (held-out residual RMS, mm)", title_justify="left")
