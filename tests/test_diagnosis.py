@@ -85,7 +85,7 @@ def _linear_inputs(frames: int, nodes: int, pattern: np.ndarray) -> Inputs:
 
 @pytest.mark.parametrize("relative", [False, True])
 def test_held_out_selection_accepts_a_real_effect_and_rejects_noise(relative):
-    """residual = (truth - 1) x pattern + noise: the stiffness hypothesis recovers truth and
+    """residual = (1 - 1 / truth) x pattern + noise: the stiffness hypothesis recovers truth and
     passes the held-out test; with truth = 1 (no effect) it is rejected."""
     frames, nodes = 48, 200
     segments = np.repeat(np.arange(8), 6)
@@ -96,7 +96,7 @@ def test_held_out_selection_accepts_a_real_effect_and_rejects_noise(relative):
                                       np.array([0.5]), np.array([2.0])),))
     for seed, truth in ((2, 1.3), (3, 1.0)):
         rng = np.random.default_rng(seed)
-        mean = (truth - 1.0) * pattern + rng.normal(0, 0.1, (frames, nodes))
+        mean = (1.0 - 1.0 / truth) * pattern + rng.normal(0, 0.1, (frames, nodes))
         field = _field(mean)
         values = fit_values(candidate, inputs, field, relative)
         result = held_out(candidate, inputs, field, segments, values, relative)

@@ -5,8 +5,10 @@ A Hypothesis maps its free parameters (k,) to the normal shift (E,) of the predi
 at every residual entry (a frame and a surface node, diagnosis.residuals.Field), from the
 sensitivity columns of diagnosis.sensitivities:
 
-- gravity, stiffness_scale, regional_stiffness, material_nonlinearity, compliant_base:
-  linear in their parameters (compliant_base in compliance 1/k, which vanishes at the clamp);
+- gravity, material_nonlinearity, compliant_base: linear in their parameters
+  (compliant_base in compliance 1/k, which vanishes at the clamp); stiffness_scale and
+  regional_stiffness linear in the compliance change 1 - 1/scale (exact for the part of
+  the shape a load holds, where a first order in the modulus halves a 50% softening);
 - viscoelastic_creep: the stiffness column times a (1 - exp(-hold / tau)) of each frame;
 - cable_slack, cable_friction: u_eff from the exact slack and play operators over the
   recording's history (model.effects), and the body at u_eff interpolated from the solved
@@ -142,9 +144,9 @@ class Hypothesis:
                     + v["tilt_x_deg"] * inputs.column("gravity.tilt_x_deg")
                     + v["tilt_y_deg"] * inputs.column("gravity.tilt_y_deg"))
         if self.name == "stiffness_scale":
-            return (v["scale"] - 1.0) * inputs.column("stiffness")
+            return _softening(v["scale"]) * inputs.column("stiffness")
         if self.name == "regional_stiffness":
-            return (v["scale"] - 1.0) * inputs.column(f"region.{self.target}")
+            return _softening(v["scale"]) * inputs.column(f"region.{self.target}")
         if self.name == "material_nonlinearity":
             return v["blend"] * inputs.column("blend")
         if self.name == "compliant_base":
@@ -160,6 +162,13 @@ class Hypothesis:
         moved = observed_points_robot(inputs.positions, (self.effect(values),),
                                       inputs.robot_from_camera)
         return np.einsum("ei,ei->e", moved - inputs.positions, inputs.normals)
+
+
+def _softening(scale: float) -> float:
+    """1 - 1/scale: a modulus scale's first-order weight on its column (d x / d scale at 1),
+    taken in compliance: under a load the body's give is proportional to 1/E, so this is
+    exact for the loaded part where (scale - 1) halves a 50% softening."""
+    return 1.0 - 1.0 / scale
 
 
 def _interpolated_shift(effective: np.ndarray, inputs: Inputs) -> np.ndarray:

@@ -32,6 +32,7 @@ from softforce_cli.diagnosis.selection import (
     indistinct,
     noise_floor_mm,
     systematic_mm,
+    worth_refitting,
 )
 from softforce_cli.diagnosis.sensitivities import column_set
 from softforce_cli.diagnosis.solves import SolveCache, solve_states
@@ -180,7 +181,7 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
     exact = ExactModel(solutions, states, contexts, points, basis)
     result.stage = "refit"
     best = [s for s in _best_per_effect(result.screened)
-            if clear_improvement(s.heldout, floor)][:REFIT_COUNT]
+            if worth_refitting(s.heldout, floor)][:REFIT_COUNT]
     for i, screened in enumerate(best):
         if stop_requested():
             result.interrupted = True

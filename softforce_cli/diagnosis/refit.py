@@ -37,11 +37,12 @@ from softforce_cli.model.effects import (
     observed_points_robot,
 )
 
-# Gauss-Newton steps of the refit after the exact evaluation at the screened values: the
-# screening's values are within a few percent for effects of the size diagnosis looks for
-# (docs/diagnosis.md), and each step costs a P2 solve of every affected state (5-15 s each
-# on a loaded 2-core machine).
-REFIT_STEPS = 1
+# Gauss-Newton steps of the refit after the exact evaluation at the screened values, each
+# solved only while it moves the values by more than half their 95% interval: cable effects
+# screen within a few percent and stop after one (docs/diagnosis.md); a large stiffness
+# change (an arm 50% softer) screens 30-40% off and needs them. Each costs a P2 solve of
+# every affected state (5-15 s each on a loaded 2-core machine).
+REFIT_STEPS = 3
 # A step smaller than this share of a parameter's screening range ends the refit.
 REFIT_TOLERANCE = 1e-3
 
@@ -137,9 +138,9 @@ def _column_changes(candidate: Candidate, values: np.ndarray, hold_s: float,
                             "gravity.tilt_x_deg": v["tilt_x_deg"],
                             "gravity.tilt_y_deg": v["tilt_y_deg"]})
         elif name == "stiffness_scale":
-            changes["stiffness"] = v["scale"] - 1.0
+            changes["stiffness"] = 1.0 - 1.0 / v["scale"]
         elif name == "regional_stiffness":
-            changes[f"region.{hypothesis.target}"] = v["scale"] - 1.0
+            changes[f"region.{hypothesis.target}"] = 1.0 - 1.0 / v["scale"]
         elif name == "material_nonlinearity":
             changes["blend"] = v["blend"]
         elif name == "compliant_base":

@@ -138,7 +138,8 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
                      f"the noise floor) that no effect of the library explains, in {where}")
     for group in diagnosis.groups:
         lines.append(f"this data cannot tell apart: {', '.join(group)}")
-    if evidence.get("prediction_element") != evidence.get("element"):
+    if (evidence.get("prediction_element") != evidence.get("element")
+            and evidence["rms_given_element_mm"] > 1.5 * evidence["rms_nominal_mm"]):
         lines.append(f"the robot's {evidence['element']} mesh alone leaves "
                      f"{evidence['rms_given_element_mm']:.2f} mm RMS (locking, "
                      f"docs/locking.md): diagnosed with {evidence['prediction_element']} "
