@@ -165,7 +165,7 @@ def test_diagnose_folder_report(tmp_path):
     console = Console(width=150, record=True)
     console.print(terminal.diagnosis_summary(folder.diagnose.diagnosis))
     text = console.export_text()
-    assert "verdict: cable_slack (at north, north)" in text
+    assert "verdict: cable_slack (at regions north; cables north)" in text
     assert "cable_slack (north)" in page and "region_rms_mm" in page
     assert "72 %" in text  # 1 - 0.9 / 3.2 of the held-out residual removed
     effects = available_tables(folder, None)["effects"]
