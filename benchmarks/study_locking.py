@@ -337,8 +337,8 @@ text interprets the run recorded in the project's history.
   SOFA's Diamond (thicker lower bars) stays stable with p2-p0, but barely: its W_aa
   eigenvalues under gravity are 22, 178, 366 and 374 mm/N (the last two the tipping pair),
   against 2 to 15 mm/N with P1. Whether the real robot tips depends on E, the mass and the
-  real geometry; a calibrated E or the nominal model without gravity (as DESIGN.md
-  section 4 allows) avoids it.
+  real geometry; a calibrated E or the nominal model without gravity (the robot file
+  allows it) avoids it.
 
 ## What is compared
 

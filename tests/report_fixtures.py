@@ -1,5 +1,5 @@
 """Inputs of the report tests: one sense run on the sample probes (made once per session),
-and a hand-made diagnose folder following DESIGN.md section 6 field by field."""
+and a hand-made diagnose folder following docs/diagnosis.md field by field."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from tests.test_sense_cli import PROBES, pose_calibration
 PROBES_TRUTH = ROOT / "sample_data" / "recordings" / "probes.truth.json"
 ARTIFACTS = ROOT / "out" / "test_artifacts"
 
-# A diagnosis as `softforce diagnose` writes it (DESIGN.md section 6): a verdict, the noise
+# A diagnosis as `softforce diagnose` writes it (docs/diagnosis.md): a verdict, the noise
 # floor, two ranked effects with their parameters and held-out residuals, and a location; plus
 # fields beyond the contract that diagnose also writes (format, selected, target, evidence).
 DIAGNOSIS = {

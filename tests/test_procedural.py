@@ -10,7 +10,8 @@ from softforce_cli.errors import ModelError
 from softforce_cli.model.mesh import TET_FACES, tet_signed_volumes
 from softforce_cli.model.procedural import DiamondGeometry, diamond_mesh
 
-# The Diamond's cable attachment points and the fixed box, from the SOFA scene (DESIGN.md §4).
+# The Diamond's cable attachment points and the fixed box, from the SOFA scene
+# (docs/robot_model.md).
 CABLE_POINTS_MM = np.array([[0, 97, 45], [-97, 0, 45], [0, -97, 45], [97, 0, 45]], float)
 FIXED_BOX_MM = np.array([[-15, -15, -40], [15, 15, 10]], float)
 

@@ -18,7 +18,7 @@ FRAMES_HEADER = ("frame,time_s,status,contacts,points_kept,features_matched,feat
 
 
 def pose_calibration(truth_file: Path, folder: Path, **extra) -> Path:
-    """A pose-only calibration (DESIGN.md section 6 allows it) from a truth file's camera."""
+    """A pose-only calibration (docs/calibration.md allows it) from a truth file's camera."""
     truth = json.loads(truth_file.read_text())
     path = folder / "pose.json"
     path.write_text(json.dumps({"rotation": truth["camera"]["rotation"],

@@ -148,6 +148,6 @@ def test_scenario_defaults_follow_the_design(tmp_path):
     path = tmp_path / "s.toml"
     path.write_text('robot = "r.toml"\n[[frame]]\nrepeat = 3\n')
     scenario = load_scenario(path)
-    assert scenario.camera.position_mm == (0.0, 0.0, 580.0)  # DESIGN.md: 0.58 m above
+    assert scenario.camera.position_mm == (0.0, 0.0, 580.0)  # docs/virtual_camera.md: 0.58 m above
     assert scenario.frame_count == 3
     assert scenario.robot == Path(tmp_path / "r.toml").resolve()

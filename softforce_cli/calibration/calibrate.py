@@ -123,7 +123,7 @@ def match_markers(robot: Robot, observed: Markers, source: str) -> np.ndarray:
     unknown, repeated or non-finite markers, or fewer than 3 non-collinear ones."""
     if not robot.marker_ids:
         raise CalibrationError(f"{robot.config.source}: the robot file defines no [[marker]]; "
-                               "add the markers' rest positions (DESIGN.md section 4)")
+                               "add the markers' rest positions (docs/robot_model.md)")
     known = {marker_id: i for i, marker_id in enumerate(robot.marker_ids)}
     seen: set[str] = set()
     for marker_id in observed.ids:

@@ -95,7 +95,7 @@ class MaterialFit:
     tared: bool
 
     def to_dict(self) -> dict[str, Any]:
-        """The calibration JSON's "material" object (DESIGN.md section 6, extended)."""
+        """The calibration JSON's "material" object (docs/calibration.md, extended)."""
         return {
             "young_modulus_mpa": round(self.young_modulus_mpa, 6),
             "young_modulus_ci95_mpa": None if self.ci95_mpa is None

@@ -1,4 +1,4 @@
-"""The calibration result and its JSON document (DESIGN.md section 6).
+"""The calibration result and its JSON document (docs/calibration.md).
 
     {
       "format": "softforce.calibration", "version": 1,

@@ -1,7 +1,7 @@
 """Rigid transforms between matched point sets: Kabsch/Umeyama by SVD, proper rotation only.
 
 Transforms are named target-from-source: `robot_from_camera` maps camera-frame points to the
-robot frame, p_robot = R p_cam + T (DESIGN.md section 3).
+robot frame, p_robot = R p_cam + T (docs/robot_model.md).
 """
 
 from __future__ import annotations

@@ -37,7 +37,7 @@ def paper_transform() -> RigidTransform:
 def overhead_transform(eye_mm=(40.0, -60.0, 580.0), target_mm=(0.0, 0.0, 60.0)
                        ) -> RigidTransform:
     """robot_from_camera of a camera at eye_mm (robot frame) looking at target_mm: by default
-    about 580 mm above the Diamond and slightly off its axis (DESIGN.md section 2)."""
+    about 580 mm above the Diamond and slightly off its axis (docs/virtual_camera.md)."""
     pose = look_at(np.asarray(eye_mm, float), np.asarray(target_mm, float))
     return RigidTransform(pose[:3, :3], pose[:3, 3])
 

@@ -11,7 +11,7 @@ from softforce_cli.camera.intrinsics import CameraIntrinsics
 
 @dataclass(frozen=True)
 class Actuation:
-    """Actuator inputs of one frame (DESIGN.md section 5, topic /robot/actuation).
+    """Actuator inputs of one frame (docs/recordings.md, topic /robot/actuation).
 
     names   : cable names, in the robot file's order.
     control : "displacement" (values in mm) or "force" (values in N).

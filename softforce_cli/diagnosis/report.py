@@ -1,4 +1,4 @@
-"""diagnosis.json (DESIGN.md section 6) and robot.fitted.toml (the robot file plus the fitted
+"""diagnosis.json (docs/diagnosis.md) and robot.fitted.toml (the robot file plus the fitted
 `[[effect]]` tables, loadable by every command)."""
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Lazy reading of RGB-D recordings: RgbdFrames one at a time, and a summary of them.
 
-Frames are the groups of messages that share a log time (DESIGN.md section 5). A finished
+Frames are the groups of messages that share a log time (docs/recordings.md). A finished
 recording is read through its chunk index in log-time order, one chunk at a time, so memory does
 not grow with the recording's length. A recording without a summary section (cut short by a
 crash or a full disk) or with a damaged one is scanned from the start instead. Either way a

@@ -1,4 +1,4 @@
-"""The softforce recording format (DESIGN.md section 5): topic names and per-message codecs.
+"""The softforce recording format (docs/recordings.md): topic names and per-message codecs.
 
 Pure functions between the parts of an RgbdFrame and the bytes of one MCAP message; the MCAP
 container itself is handled by mcap_writer.py and mcap_reader.py.

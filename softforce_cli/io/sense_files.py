@@ -1,4 +1,4 @@
-"""The output folder of `softforce sense` (DESIGN.md section 6), written frame by frame.
+"""The output folder of `softforce sense` (docs/sensing.md), written frame by frame.
 
 contacts.csv and frames.csv get one flushed row per contact / frame. sense.json is kept a
 valid JSON document after every frame: the frames array and the summary that closes it are

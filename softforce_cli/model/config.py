@@ -1,4 +1,4 @@
-"""The robot model file (DESIGN.md section 4): TOML parsed into validated, frozen data.
+"""The robot model file (docs/robot_model.md): TOML parsed into validated, frozen data.
 
 Every check raises ModelError with one line naming the file, the key and the fix.
 """
@@ -106,7 +106,7 @@ def parse_config(data: dict[str, Any], source: Path) -> RobotConfig:
     where.keys(data, "top", "")
     for section in ("mesh", "material"):
         if section not in data:
-            raise ModelError(f"{source}: missing [{section}] section (see DESIGN.md section 4)")
+            raise ModelError(f"{source}: missing [{section}] section (see docs/robot_model.md)")
     mesh = data["mesh"]
     where.keys(mesh, "mesh", "mesh")
     if not isinstance(mesh.get("path"), str) or not mesh["path"].strip():

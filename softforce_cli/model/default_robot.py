@@ -47,7 +47,7 @@ def robot_toml(mesh_file: str, markers: dict[str, np.ndarray], resolution: str) 
         return "[" + ", ".join(f"{float(x):.4f}" for x in v) + "]"
 
     lines = [
-        f"# softforce default robot: procedural Diamond ({resolution} mesh), DESIGN.md section 4.",
+        f"# softforce default robot: procedural Diamond ({resolution} mesh), docs/robot_model.md.",
         'name = "diamond"', "",
         "[mesh]", f'path = "{mesh_file}"', "scale = 1.0", "rotation_deg = [0.0, 0.0, 0.0]",
         "translation_mm = [0.0, 0.0, 0.0]", "",

@@ -1,4 +1,4 @@
-"""diagnosis.json (DESIGN.md section 6) read into dataclasses, checked field by field.
+"""diagnosis.json (docs/diagnosis.md) read into dataclasses, checked field by field.
 
     {"verdict": EFFECT | "none" | "unexplained", "noise_floor_mm": float,
      "effects": [{"name", "parameters": {NAME: {"value", "ci95": [lo, hi], "unit"}},

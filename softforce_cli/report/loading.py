@@ -1,6 +1,6 @@
 """A sense or diagnose output folder read back into dataclasses, whatever state it is in.
 
-A sense folder (DESIGN.md section 6) holds contacts.csv, frames.csv and sense.json, each
+A sense folder (docs/sensing.md) holds contacts.csv, frames.csv and sense.json, each
 flushed frame by frame: an interrupted run can leave a CSV whose last line is cut short, or a
 sense.json cut mid-frame. The tables are read from the CSVs, keeping every whole row and noting
 what was dropped; sense.json gives the run's header (recording, robot, calibration, settings)
@@ -25,7 +25,7 @@ from softforce_cli.report.diagnosis_file import Diagnosis, read_diagnosis
 
 # Columns of frames.csv that hold text; every other column is a number (NaN when empty).
 TEXT_COLUMNS = ("status",)
-# The columns every softforce frames.csv starts with (DESIGN.md section 6): later columns vary.
+# The columns every softforce frames.csv starts with (docs/sensing.md): later columns vary.
 FRAMES_REQUIRED = FRAMES_HEADER[:9]
 
 

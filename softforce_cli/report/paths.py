@@ -27,7 +27,7 @@ def resolve_input(text: str | None, folder: Path) -> Path | None:
 
 
 def truth_path(recording: Path) -> Path:
-    """rec.mcap -> rec.truth.json beside it (DESIGN.md section 5), the name
+    """rec.mcap -> rec.truth.json beside it (docs/recordings.md), the name
     sim.simulate.truth_path_for gives; not imported from there, whose rendering imports
     cost seconds."""
     return recording.with_name(recording.stem + ".truth.json")

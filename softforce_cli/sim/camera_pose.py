@@ -1,7 +1,7 @@
 """Rigid camera poses for the virtual camera: look-at construction, inversion, point transforms.
 
 A pose is a (4, 4) float64 homogeneous matrix named target-from-source: `world_from_cam` maps
-points from the camera's optical frame (x right, y down, z forward; DESIGN.md section 3) into
+points from the camera's optical frame (x right, y down, z forward; docs/robot_model.md) into
 the world frame, which for the simulator is the robot frame, in millimetres.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-# DESIGN.md section 2: the camera is about 0.58 m above the Diamond, looking down.
+# docs/virtual_camera.md: the camera is about 0.58 m above the Diamond, looking down.
 DIAMOND_CAMERA_HEIGHT_MM = 580.0
 
 
@@ -82,7 +82,7 @@ def overhead_pose(
 ) -> np.ndarray:
     """world_from_cam (4, 4) of a camera `height_mm` straight above `target_mm`, looking down.
 
-    The default is the Diamond set-up of DESIGN.md section 2: 580 mm above the robot's base
+    The default is the Diamond set-up of docs/virtual_camera.md: 580 mm above the robot's base
     centre (the robot-frame origin), world +y toward the image top, world +x to the right.
     """
     target = np.asarray(target_mm, dtype=float)

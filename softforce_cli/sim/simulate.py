@@ -3,7 +3,7 @@
 For each state of the scenario the truth robot is solved, its deformed surface and the probes
 and weights are ray cast by a virtual D415 above the robot, and the frame is written with its
 actuation (and optional noisy marker observations). The ground truth never enters the
-recording (DESIGN.md section 5).
+recording (docs/recordings.md).
 
 A scenario's `[[effect]]` tables are concealed in the truth (docs/effects.md): physics
 effects in the truth robot, actuation effects between the commanded and the received cable
@@ -406,7 +406,7 @@ def _truth_document(
                 "cx": intrinsics.cx,
                 "cy": intrinsics.cy,
             },
-            # p_robot = R p_cam + T, the transform calibration estimates (DESIGN.md section 3)
+            # p_robot = R p_cam + T, the transform calibration estimates (docs/robot_model.md)
             "rotation": _rounded(world_from_cam[:3, :3], 12),
             "translation_mm": _rounded(world_from_cam[:3, 3], 9),
             # where the camera truly stood: moved by a concealed extrinsic_offset, if any
