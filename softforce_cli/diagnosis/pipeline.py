@@ -296,6 +296,13 @@ def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
     for chosen in result.selected:
         near = [f.candidate.label for f in result.finals if f is not chosen
                 and f.accepted and indistinct(f.heldout, chosen.heldout)]
+        # screened effects as good as the chosen one's screening: one signature on this data
+        # (a 1% depth scale and a 4.7 mm camera move along its axis, 80 mm of depth at 470)
+        near += [s.candidate.label for s in _best_per_effect(result.screened)
+                 if s.key != chosen.screened.key and s.candidate.label not in near
+                 and s.candidate.hypotheses[0].name != chosen.candidate.hypotheses[0].name
+                 and clear_improvement(s.heldout, floor)
+                 and indistinct(s.heldout, chosen.screened.heldout)]
         if near:
             result.groups.append([chosen.candidate.label, *near])
     result.location = _location(result.robot, nominal if result.selected else final,
