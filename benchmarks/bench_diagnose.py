@@ -24,6 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.timing import BenchRow  # noqa: E402
+from softforce_cli.estimation.truth_errors import pose_from_truth  # noqa: E402
 
 COARSE = ROOT / "sample_data" / "diamond" / "diamond.toml"
 TRUTH_ROBOT = ROOT / "sample_data" / "diamond_truth" / "diamond.toml"
@@ -67,10 +68,8 @@ def make_recording() -> None:
 
 
 def calibration() -> Path:
-    truth = json.loads(RECORDING.with_suffix(".truth.json").read_text())
     path = FOLDER / "pose.json"
-    path.write_text(json.dumps({"rotation": truth["camera"]["rotation"],
-                                "translation_mm": truth["camera"]["translation_mm"]}))
+    path.write_text(json.dumps(pose_from_truth(RECORDING.with_suffix(".truth.json"))))
     return path
 
 

@@ -15,7 +15,7 @@ from benchmarks.timing import BenchRow
 from softforce_cli.estimation.results import STAGES
 from softforce_cli.estimation.session import run_sensing
 from softforce_cli.estimation.setup import SenseInputs, prepare_sensing
-from softforce_cli.estimation.truth_errors import compare_with_truth, read_truth
+from softforce_cli.estimation.truth_errors import compare_with_truth, pose_from_truth, read_truth
 from softforce_cli.sim.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -74,10 +74,8 @@ def _recording() -> Path:
 
 def _calibration(recording: Path) -> Path:
     """The truth's camera pose as a pose-only calibration: the bench times sensing alone."""
-    truth = json.loads(recording.with_suffix(".truth.json").read_text())
     path = OUT / "pose.json"
-    path.write_text(json.dumps({"rotation": truth["camera"]["rotation"],
-                                "translation_mm": truth["camera"]["translation_mm"]}))
+    path.write_text(json.dumps(pose_from_truth(recording.with_suffix(".truth.json"))))
     return path
 
 

@@ -24,6 +24,8 @@ import sys
 import time
 from pathlib import Path
 
+from softforce_cli.estimation.truth_errors import pose_from_truth
+
 ROOT = Path(__file__).resolve().parents[1]
 COARSE = ROOT / "sample_data" / "diamond" / "diamond.toml"
 TRUTH_ROBOT = ROOT / "sample_data" / "diamond_truth" / "diamond.toml"
@@ -106,10 +108,8 @@ def run_case(case: str, seed: int) -> dict:
         made = softforce("simulate", scenario, "-o", recording)
         if made.returncode != 0:
             return {"case": case, "seed": seed, "error": made.stderr.strip()[-300:]}
-    truth = json.loads(recording.with_suffix(".truth.json").read_text())
     pose = FOLDER / "pose.json"
-    pose.write_text(json.dumps({"rotation": truth["camera"]["rotation"],
-                                "translation_mm": truth["camera"]["translation_mm"]}))
+    pose.write_text(json.dumps(pose_from_truth(recording.with_suffix(".truth.json"))))
     output = FOLDER / f"{name}.out"
     shutil.rmtree(output, ignore_errors=True)
     began = time.perf_counter()

@@ -38,7 +38,7 @@ from softforce_cli.calibration.robust import calibrate_checked  # noqa: E402
 from softforce_cli.estimation.session import run_sensing  # noqa: E402
 from softforce_cli.estimation.settings import load_settings  # noqa: E402
 from softforce_cli.estimation.setup import SenseInputs, prepare_sensing  # noqa: E402
-from softforce_cli.estimation.truth_errors import compare_with_truth, read_truth  # noqa: E402
+from softforce_cli.estimation.truth_errors import compare_with_truth, pose_from_truth, read_truth  # noqa: E402
 from softforce_cli.model.robot import load_robot  # noqa: E402
 from softforce_cli.sim.simulate import simulate  # noqa: E402
 
@@ -200,10 +200,8 @@ def probes_study(robot_file: Path, pose: Path | None, width: int, height: int, n
 
 def truth_pose(path: Path) -> Path:
     """The camera pose of a simulated recording's truth as a pose-only calibration."""
-    truth = read_truth(path.with_suffix(".truth.json"))
     pose = OUT / f"pose_{path.stem}.json"
-    pose.write_text(json.dumps({"rotation": truth["camera"]["rotation"],
-                                "translation_mm": truth["camera"]["translation_mm"]}))
+    pose.write_text(json.dumps(pose_from_truth(path.with_suffix(".truth.json"))))
     return pose
 
 

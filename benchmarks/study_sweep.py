@@ -39,7 +39,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from softforce_cli.estimation.session import run_sensing  # noqa: E402
 from softforce_cli.estimation.setup import SenseInputs, prepare_sensing  # noqa: E402
-from softforce_cli.estimation.truth_errors import compare_with_truth, read_truth  # noqa: E402
+from softforce_cli.estimation.truth_errors import compare_with_truth, pose_from_truth, read_truth  # noqa: E402
 from softforce_cli.io.atomic import atomic_write_bytes, atomic_write_text  # noqa: E402
 from softforce_cli.sim.simulate import TruthCache, simulate  # noqa: E402
 
@@ -115,10 +115,8 @@ def robot_variant(count: int) -> Path:
 
 def truth_pose(recording: Path) -> Path:
     """The camera pose of a simulated recording's truth as a pose-only calibration."""
-    camera = read_truth(recording.with_suffix(".truth.json"))["camera"]
     path = OUT / "pose.json"
-    path.write_text(json.dumps({"rotation": camera["rotation"],
-                                "translation_mm": camera["translation_mm"]}))
+    path.write_text(json.dumps(pose_from_truth(recording.with_suffix(".truth.json"))))
     return path
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from softforce_cli.estimation.truth_errors import pose_from_truth
 from tests.cli_runner import assert_one_line_error, softforce
 from tests.conftest import ROOT, SAMPLE_ROBOT
 
@@ -19,10 +20,8 @@ FRAMES_HEADER = ("frame,time_s,status,contacts,points_kept,features_matched,feat
 
 def pose_calibration(truth_file: Path, folder: Path, **extra) -> Path:
     """A pose-only calibration (docs/calibration.md allows it) from a truth file's camera."""
-    truth = json.loads(truth_file.read_text())
     path = folder / "pose.json"
-    path.write_text(json.dumps({"rotation": truth["camera"]["rotation"],
-                                "translation_mm": truth["camera"]["translation_mm"], **extra}))
+    path.write_text(json.dumps({**pose_from_truth(truth_file), **extra}))
     return path
 
 

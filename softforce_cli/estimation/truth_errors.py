@@ -83,6 +83,13 @@ def read_truth(path: Path) -> dict[str, Any]:
         raise SensingError(f"{path}: cannot read the ground truth ({error})") from error
 
 
+def pose_from_truth(truth_file: Path) -> dict[str, Any]:
+    """The camera pose a simulated recording was made with (its truth file's "camera"), as a
+    pose-only calibration document: what accuracy studies give to score sensing alone."""
+    camera = read_truth(truth_file)["camera"]
+    return {"rotation": camera["rotation"], "translation_mm": camera["translation_mm"]}
+
+
 def compare_with_truth(sense: dict[str, Any], truth: dict[str, Any]) -> TruthComparison:
     """Compare a sense.json document with a truth document, frame by frame (frame indices
     are the recording's; frames not processed are left out)."""
