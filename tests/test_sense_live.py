@@ -19,6 +19,7 @@ from softforce_cli.cli.main import _register_commands, app
 from softforce_cli.io.mcap_reader import iter_frames
 from tests.conftest import ROOT, SAMPLE_ROBOT
 from tests.realsense_fakes import FPS, PERIOD_MS, T0_MS, SoftwareCamera
+from tests.test_sense_cli import pose_calibration
 
 PROBES = ROOT / "sample_data" / "recordings" / "probes.mcap"
 REPEATS = 6  # each recorded frame is shown this many times: 24 frames, 0.8 s at 30 fps
@@ -59,14 +60,10 @@ def live_frames_from(recording):
 
 
 def test_sense_live_senses_the_newest_frames_and_records_every_frame(tmp_path, monkeypatch):
-    truth = json.loads(PROBES.with_suffix("").with_suffix(".truth.json").read_text())
-    calibration = tmp_path / "calibration.json"
-    calibration.write_text(json.dumps({
-        "rotation": truth["camera"]["rotation"],
-        "translation_mm": truth["camera"]["translation_mm"],
-        "actuation": {"control": "displacement", "values": truth["frames"][0]["actuation"]
-                      ["values"]},
-    }))
+    truth_file = PROBES.with_suffix("").with_suffix(".truth.json")
+    truth = json.loads(truth_file.read_text())
+    calibration = pose_calibration(truth_file, tmp_path, actuation={
+        "control": "displacement", "values": truth["frames"][0]["actuation"]["values"]})
     fake, pushed = live_frames_from(PROBES)
     monkeypatch.setattr(realsense, "iter_live_frames", fake)
     _register_commands()
