@@ -10,7 +10,8 @@ recordings and the results (out/study_diagnosis/results.jsonl, one line per case
 a rerun continues where the last stopped. `--table` prints the markdown table of what ran
 (docs/diagnosis.md).
 
-    .venv/bin/python benchmarks/study_diagnosis.py [--cases NAME,...] [--seeds 3] [--table]
+    .venv/bin/python benchmarks/study_diagnosis.py [--cases NAME,...] [--seeds 3] [--redo]
+        [--recordings-only] [--table]
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ import time
 from pathlib import Path
 
 from softforce_cli.estimation.truth_errors import pose_from_truth
+from softforce_cli.io.atomic import atomic_write_text
+from softforce_cli.sim.simulate import truth_path_for
 
 ROOT = Path(__file__).resolve().parents[1]
 COARSE = ROOT / "sample_data" / "diamond" / "diamond.toml"
@@ -99,17 +102,50 @@ def softforce(*args) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, check=False)
 
 
+FRAMES = sum(repeat for _, repeat in TIMELINE)
+
+
+def recorded_frames(recording: Path) -> int:
+    """Frames a study recording holds, from its truth file (0 when there is none)."""
+    truth = truth_path_for(recording)
+    return len(json.loads(truth.read_text())["frames"]) if truth.exists() else 0
+
+
+def make_recording(case: str, seed: int, recording: Path) -> str | None:
+    """Simulate a case's recording under a temporary name and rename it only when complete.
+
+    `simulate` keeps the frames done when it is interrupted (a 3-frame recording once stood
+    for a 20-frame case), so a recording is taken only with all the timeline's frames;
+    returns an error line or None.
+    """
+    scenario = recording.with_suffix(".toml")
+    scenario.write_text(scenario_text(case, seed))
+    partial = recording.with_name(recording.stem + ".partial.mcap")
+    made = softforce("simulate", scenario, "-o", partial, "--force")
+    if made.returncode != 0:
+        return made.stderr.strip()[-300:]
+    if (frames := recorded_frames(partial)) != FRAMES:
+        return f"simulate wrote {frames} of {FRAMES} frames"
+    # the truth file first: a recording without its truth is remade, never read
+    truth_path_for(partial).replace(truth_path_for(recording))
+    partial.replace(recording)
+    return None
+
+
+def ensure_recording(case: str, seed: int, recording: Path) -> str | None:
+    """Make the case's recording unless a complete one exists; an error line or None."""
+    if recording.exists() and recorded_frames(recording) == FRAMES:
+        return None
+    return make_recording(case, seed, recording)
+
+
 def run_case(case: str, seed: int) -> dict:
     name = f"{case}-s{seed}"
     recording = FOLDER / f"{name}.mcap"
-    if not recording.exists():
-        scenario = FOLDER / f"{name}.toml"
-        scenario.write_text(scenario_text(case, seed))
-        made = softforce("simulate", scenario, "-o", recording)
-        if made.returncode != 0:
-            return {"case": case, "seed": seed, "error": made.stderr.strip()[-300:]}
+    if (error := ensure_recording(case, seed, recording)) is not None:
+        return {"case": case, "seed": seed, "error": error}
     pose = FOLDER / "pose.json"
-    pose.write_text(json.dumps(pose_from_truth(recording.with_suffix(".truth.json"))))
+    pose.write_text(json.dumps(pose_from_truth(truth_path_for(recording))))
     output = FOLDER / f"{name}.out"
     shutil.rmtree(output, ignore_errors=True)
     began = time.perf_counter()
@@ -155,24 +191,38 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--cases", help="comma-separated case names (default all)")
     parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--redo", action="store_true",
+                        help="diagnose the chosen cases again (their recordings are kept)")
+    parser.add_argument("--recordings-only", action="store_true",
+                        help="only simulate the missing recordings (the long part), one by one")
     parser.add_argument("--table", action="store_true", help="print the table of what ran")
     args = parser.parse_args()
     FOLDER.mkdir(parents=True, exist_ok=True)
-    done = [json.loads(line) for line in RESULTS.read_text().splitlines()] \
-        if RESULTS.exists() else []
+    # one row per (case, seed), the latest; a case that failed is tried again
+    rows = {(r["case"], r["seed"]): r for r in map(json.loads, RESULTS.read_text().splitlines())
+            } if RESULTS.exists() else {}
     if args.table:
-        print(table(done))
+        print(table([rows[key] for key in sorted(rows, key=_order)]))
         return
     cases = args.cases.split(",") if args.cases else list(CASES)
-    finished = {(r["case"], r["seed"]) for r in done}
     for seed in range(1, args.seeds + 1):
         for case in cases:
-            if (case, seed) in finished:
+            if args.recordings_only:
+                error = ensure_recording(case, seed, FOLDER / f"{case}-s{seed}.mcap")
+                print(f"{case}-s{seed}: {error or 'recorded'}", flush=True)
                 continue
-            result = run_case(case, seed)
-            with RESULTS.open("a") as stream:
-                stream.write(json.dumps(result) + "\n")
-            print(json.dumps(result), flush=True)
+            if (case, seed) in rows and "error" not in rows[case, seed] and not args.redo:
+                continue
+            rows[case, seed] = run_case(case, seed)
+            atomic_write_text(RESULTS, "".join(json.dumps(r) + "\n" for r in rows.values()),
+                              force=True)
+            print(json.dumps(rows[case, seed]), flush=True)
+
+
+def _order(key: tuple[str, int]) -> tuple[int, int]:
+    """Table order: by seed, then as the cases are listed."""
+    case, seed = key
+    return seed, list(CASES).index(case) if case in CASES else len(CASES)
 
 
 if __name__ == "__main__":
