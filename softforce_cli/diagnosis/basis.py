@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from softforce_cli.calibration.rigid import RigidTransform
+from softforce_cli.diagnosis.background import Table
 from softforce_cli.diagnosis.hypotheses import Inputs
 from softforce_cli.diagnosis.residuals import Field, surface_normals
 from softforce_cli.diagnosis.sensitivities import ColumnSet
@@ -21,7 +22,8 @@ from softforce_cli.model.effects import FrameContext
 @dataclass(frozen=True, eq=False)
 class Basis:
     """predicted_mm (S, n, 3), normals (S, n, 3), normal_columns (S, C, n) mm per unit,
-    state_inputs (S, a), cable_columns (S, a, n, 3) mm per unit input."""
+    state_inputs (S, a), cable_columns (S, a, n, 3) mm per unit input; table: the observed
+    table (diagnosis.background) or None."""
 
     predicted_mm: np.ndarray
     normals: np.ndarray
@@ -33,6 +35,7 @@ class Basis:
     robot_from_camera: RigidTransform
     state_inputs: np.ndarray
     cable_columns: np.ndarray
+    table: Table | None = None
 
     def inputs_for(self, field: Field) -> Inputs:
         state = self.of_frame[field.frame]
@@ -40,17 +43,19 @@ class Basis:
                       self.predicted_mm[state, field.node],
                       self.normal_columns[state, :, field.node].T, self.column_set,
                       self.contexts, self.cables, self.robot_from_camera, self.predicted_mm,
-                      self.state_inputs, self.cable_columns)
+                      self.state_inputs, self.cable_columns, self.table)
 
 
 def build_basis(predicted_mm: np.ndarray, columns: np.ndarray, surface_faces: np.ndarray,
                 column_set: ColumnSet, of_frame: np.ndarray,
                 contexts: tuple[FrameContext, ...], cables: tuple[str, ...],
-                robot_from_camera: RigidTransform, state_inputs: np.ndarray) -> Basis:
-    """From the predictions (S, n, 3), the sensitivity columns (S, C, n, 3) and the states'
-    inputs (S, a)."""
+                robot_from_camera: RigidTransform, state_inputs: np.ndarray,
+                table: Table | None = None) -> Basis:
+    """From the predictions (S, n, 3), the sensitivity columns (S, C, n, 3), the states'
+    inputs (S, a) and the observed table."""
     normals = np.stack([surface_normals(p, surface_faces) for p in predicted_mm])
     projected = np.einsum("scni,sni->scn", columns, normals)
     cable = [column_set.index(f"cable.{name}") for name in cables]
     return Basis(predicted_mm, normals, projected, column_set, of_frame, contexts, cables,
-                 robot_from_camera, np.asarray(state_inputs, dtype=float), columns[:, cable])
+                 robot_from_camera, np.asarray(state_inputs, dtype=float), columns[:, cable],
+                 table)

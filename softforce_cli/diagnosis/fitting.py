@@ -60,6 +60,18 @@ class Candidate:
         parts = self.split(values)
         return sum(h.shift(v, inputs) for h, v in zip(self.hypotheses, parts, strict=True))
 
+    @property
+    def moves_camera(self) -> bool:
+        """Whether a hypothesis is a sensor effect (the only kind that moves the table)."""
+        return any(h.kind == "sensor" for h in self.hypotheses)
+
+    def table_misfit_mm(self, values: np.ndarray, inputs: Inputs) -> float | None:
+        """RMS (mm) of the observed table's height the candidate leaves unexplained (a
+        physics effect explains none of it); None without a table."""
+        if inputs.table is None:
+            return None
+        return inputs.table.misfit_mm(self.effects(values), inputs.robot_from_camera)
+
 
 def node_offsets(values: np.ndarray, field: Field, mask: np.ndarray) -> np.ndarray:
     """Per entry, the point-weighted mean of `values` (E,) or (E, k) over the entries in
@@ -81,16 +93,26 @@ def fit_values(candidate: Candidate, inputs: Inputs, field: Field, relative: boo
     """(k,) parameters minimising sum w (r - shift(p) [- o])^2 over the entries of `field`
     in `mask` (default all), `field` having the entries of inputs.field. relative: with a
     free static offset o per node (the baseline the model's own discretisation leaves), so
-    only what changes across frames counts."""
+    only what changes across frames counts. A camera effect is fitted to the observed table's
+    height too (inputs.table, diagnosis.background)."""
     mask = np.ones(len(field.mean_mm), dtype=bool) if mask is None else mask
     root = np.sqrt(field.weight[mask])
     lower, upper = candidate.lower, candidate.upper
+
+    table = inputs.table if candidate.moves_camera else None
+    # a camera effect must put the table where it is seen as well as the robot: its heights
+    # count as much as the robot's entries (the table has no model error)
+    table_root = None if table is None else np.sqrt(root @ root / len(table.observed_mm))
 
     def residual(values: np.ndarray) -> np.ndarray:
         left = field.mean_mm - candidate.shift(values, inputs)
         if relative:
             left = left - node_offsets(left, field, mask)
-        return root * left[mask]
+        if table is None:
+            return root * left[mask]
+        on_table = table.observed_mm - table.shift(candidate.effects(values),
+                                                   inputs.robot_from_camera)
+        return np.concatenate([root * left[mask], table_root * on_table])
 
     if start is not None:
         x0 = np.clip(start, lower, upper)

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from softforce_cli.calibration.rigid import RigidTransform
+from softforce_cli.diagnosis.background import Table
 from softforce_cli.diagnosis.residuals import Field
 from softforce_cli.diagnosis.sensitivities import ColumnSet
 from softforce_cli.model.effects import (
@@ -87,6 +88,7 @@ class Inputs:
     library    : (S, n, 3) every state's predicted mesh nodes.
     library_inputs : (S, a) every state's commanded inputs.
     cable_columns  : (S, a, n, 3) every state's cable columns (mm per unit input).
+    table      : the table under the robot as observed (diagnosis.background), or None.
     """
 
     field: Field
@@ -101,6 +103,7 @@ class Inputs:
     library: np.ndarray
     library_inputs: np.ndarray
     cable_columns: np.ndarray
+    table: Table | None = None
 
     def column(self, name: str) -> np.ndarray:
         return self.columns[self.column_set.index(name)]

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from softforce_cli.diagnosis.background import TABLE_TOLERANCE_MM, observed_table
 from softforce_cli.diagnosis.basis import Basis, build_basis
 from softforce_cli.diagnosis.fitting import (
     Candidate,
@@ -61,6 +62,7 @@ class Screened:
     heldout: HeldOut
     relative: bool
     ci95: np.ndarray  # (k, 2) from the first-order model's Gauss-Newton covariance
+    table_misfit_mm: float | None  # the observed table's height left unexplained
 
     @property
     def key(self) -> tuple[str, bool]:
@@ -76,6 +78,7 @@ class Final:
     heldout: HeldOut
     ci95: np.ndarray
     accepted: bool
+    table_misfit_mm: float | None
 
     @property
     def candidate(self) -> Candidate:
@@ -159,9 +162,10 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
     segments = trajectory_segments(states, recordings)
     n_eff = effective_sample_size(nominal, frames)
     cables = tuple(spec.name for spec in robot.cable_specs)
+    table = observed_table((f.table_plane for f in observations.frames), mesh.nodes_mm)
     basis = build_basis(solutions.predicted_mm, solutions.mesh_columns, mesh.surface_faces,
                         columns, states.of_frame, contexts, cables,
-                        observations.robot_from_camera, states.actuation)
+                        observations.robot_from_camera, states.actuation, table)
     inputs = basis.inputs_for(nominal)
     result.stage = "screening"
     tasks = [(Candidate((h,)), relative) for h in hypotheses(robot, columns)
@@ -175,13 +179,14 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
         result.screened.append(Screened(
             candidate, values, held_out(candidate, inputs, nominal, segments, values, relative),
             relative, _first_order_ci(candidate, inputs, nominal, values, relative, n_eff,
-                                      frames)))
+                                      frames), candidate.table_misfit_mm(values, inputs)))
     report("screening", len(tasks), len(tasks))
     result.screened.sort(key=lambda s: -excess_share(s.heldout, floor))
     exact = ExactModel(solutions, states, contexts, points, basis)
     result.stage = "refit"
     best = [s for s in _best_per_effect(result.screened)
-            if worth_refitting(s.heldout, floor)][:REFIT_COUNT]
+            if worth_refitting(s.heldout, floor) and _table_agrees(s.table_misfit_mm)
+            ][:REFIT_COUNT]
     for i, screened in enumerate(best):
         if stop_requested():
             result.interrupted = True
@@ -206,6 +211,12 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
     _verdict(result, floor, basis, solutions, segments, n_eff)
     result.stage = "done"
     return result
+
+
+def _table_agrees(misfit_mm: float | None) -> bool:
+    """Whether an explanation puts the table where the camera shows it (diagnosis.background):
+    a physics effect cannot explain a moved table, nor a camera move an unmoved one."""
+    return misfit_mm is None or misfit_mm <= TABLE_TOLERANCE_MM
 
 
 def _first_order_ci(candidate: Candidate, inputs, nominal: Field, values: np.ndarray,
@@ -242,7 +253,9 @@ def _final(exact: ExactModel, screened: Screened, nominal: Field, segments: np.n
     result = held_out(fitted.candidate, inputs, fitted.field, segments, fitted.evaluated,
                       screened.relative, jacobian=fitted.jacobian, nominal=nominal)
     ci = confidence_intervals(fitted.field, fitted.jacobian, fitted.values, n_eff, frames)
-    return Final(screened, fitted, result, ci, clear_improvement(result, floor, baseline))
+    table = fitted.candidate.table_misfit_mm(fitted.values, inputs)
+    return Final(screened, fitted, result, ci,
+                 clear_improvement(result, floor, baseline) and _table_agrees(table), table)
 
 
 def _second(exact, result: Diagnosis, first: Final, inputs, nominal, segments, floor, n_eff,
@@ -262,8 +275,9 @@ def _second(exact, result: Diagnosis, first: Final, inputs, nominal, segments, f
         pairs.append(Screened(pair, values, held_out(pair, inputs, nominal, segments, values,
                                                      relative), relative,
                               _first_order_ci(pair, inputs, nominal, values, relative, n_eff,
-                                              frames)))
+                                              frames), pair.table_misfit_mm(values, inputs)))
     report("second effect", len(others), len(others))
+    pairs = [p for p in pairs if _table_agrees(p.table_misfit_mm)]
     if not pairs or stop_requested():
         return None
     best = min(pairs, key=lambda s: s.heldout.rms_after_mm)
@@ -301,7 +315,7 @@ def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
         near += [s.candidate.label for s in _best_per_effect(result.screened)
                  if s.key != chosen.screened.key and s.candidate.label not in near
                  and s.candidate.hypotheses[0].name != chosen.candidate.hypotheses[0].name
-                 and clear_improvement(s.heldout, floor)
+                 and clear_improvement(s.heldout, floor) and _table_agrees(s.table_misfit_mm)
                  and indistinct(s.heldout, chosen.screened.heldout)]
         if near:
             result.groups.append([chosen.candidate.label, *near])
@@ -322,6 +336,9 @@ def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
         "mesh_correction_rms_mm": round(float(np.sqrt(np.mean(np.sum(corrections**2,
                                                                       axis=-1)))), 3),
         "rms_given_element_mm": round(given, 3),
+        # the observed table's height above where the robot stands (RMS over its footprint)
+        "table_offset_mm": (None if basis.table is None else
+                            round(float(np.sqrt(np.mean(basis.table.observed_mm**2))), 3)),
         "mesh_share": round(max(0.0, 1.0 - before**2 / given**2), 3) if given > 0 else 0.0,
         "rms_nominal_mm": round(before, 3),
         "rms_final_mm": round(after, 3),

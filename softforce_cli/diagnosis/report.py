@@ -79,6 +79,8 @@ def effect_entry(item: Final | Screened, floor_mm: float, selected: bool) -> dic
             "excess_share": _finite(excess_share(held, floor_mm)),
             "explained_mm": _finite(explained_mm(held)),
             "fe_solves": item.refit.solves if isinstance(item, Final) else 0,
+            "table_misfit_mm": (None if item.table_misfit_mm is None
+                                else round(item.table_misfit_mm, 3)),
         },
     }
 

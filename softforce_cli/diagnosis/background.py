@@ -1,0 +1,81 @@
+"""The static background as evidence about the camera: the table the robot stands on.
+
+A miscalibrated camera (depth_bias, extrinsic_offset) moves the table in the robot frame as it
+moves the robot; a physics effect (a compliant base, more gravity, a softer body) moves the
+robot only. The table is where the robot's lowest rest point is (the clamp stands on it),
+horizontal (the robot frame's z is up); the vision stage fits its plane in every recording
+(diagnosis.observations, `table_plane`). Its observed height over the robot's footprint is
+then a residual only a camera effect can explain, and one that separates the camera effects
+too: a depth scale moves the table (617 mm from the sample camera) more than the robot (450 to
+620 mm), a camera move along its axis moves both alike, and a lateral move or a turn about
+the axis leaves a horizontal table where it is.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from softforce_cli.calibration.rigid import RigidTransform
+from softforce_cli.model.effects import Effect, effects_of_kind, observed_points_robot
+
+# A table found further than this from the robot's lowest point is not the one it stands on
+# (a robot on a pedestal, a fit on the floor): it is not used.
+TABLE_SEARCH_MM = 30.0
+# How far (RMS over the footprint) the observed table may be from where an explanation puts
+# it: the gap under the clamp the setup leaves (0.5 mm in the simulated scenes) and the plane
+# fit's error (0.1 mm on the sample recordings).
+TABLE_TOLERANCE_MM = 1.0
+# Grid points per side over the robot's footprint where the table's height is compared.
+GRID_SIDE = 5
+
+
+@dataclass(frozen=True, eq=False)
+class Table:
+    """The table under the robot as the camera shows it.
+
+    points_mm   : (g, 3) grid over the robot's footprint on the expected table (z = the
+                  robot's lowest rest point), robot frame.
+    observed_mm : (g,) observed table height above the expected one at each grid point (mean
+                  over the frames' planes).
+    """
+
+    points_mm: np.ndarray
+    observed_mm: np.ndarray
+
+    def shift(self, effects: Iterable[Effect], robot_from_camera: RigidTransform) -> np.ndarray:
+        """(g,) mm: how far the sensor `effects` raise the table at the grid points (a
+        horizontal plane moved and turned by a few degrees: its height at a point is the
+        moved point's height to within 0.01 mm)."""
+        effects = effects_of_kind(tuple(effects), "sensor")
+        if not effects:
+            return np.zeros(len(self.points_mm))
+        moved = observed_points_robot(self.points_mm, effects, robot_from_camera)
+        return moved[:, 2] - self.points_mm[:, 2]
+
+    def misfit_mm(self, effects: Iterable[Effect], robot_from_camera: RigidTransform) -> float:
+        """RMS (mm) of the observed table height less what `effects` explain."""
+        left = self.observed_mm - self.shift(effects, robot_from_camera)
+        return float(np.sqrt(np.mean(left**2)))
+
+
+def observed_table(planes: Iterable[tuple[np.ndarray, float] | None],
+                   rest_nodes_mm: np.ndarray) -> Table | None:
+    """The Table from the frames' table planes (unit normal (3,), offset) or None, and the
+    robot's rest nodes (n, 3) mm; None when no frame found the table, or it is not the one
+    the robot stands on (TABLE_SEARCH_MM)."""
+    found = [(np.asarray(n, dtype=float), float(d)) for n, d in
+             (p for p in planes if p is not None) if abs(n[2]) > 0.5]
+    if not found:
+        return None
+    low, high = rest_nodes_mm.min(axis=0), rest_nodes_mm.max(axis=0)
+    axes = [np.linspace(low[i], high[i], GRID_SIDE) for i in range(2)]
+    x, y = (a.ravel() for a in np.meshgrid(*axes))
+    # height of each plane n . p + d = 0 over every grid point, less the expected table's
+    heights = np.array([-(n[0] * x + n[1] * y + d) / n[2] for n, d in found])
+    observed = heights.mean(axis=0) - low[2]
+    if np.sqrt(np.mean(observed**2)) > TABLE_SEARCH_MM:
+        return None
+    return Table(np.column_stack([x, y, np.full(len(x), low[2])]), observed)
