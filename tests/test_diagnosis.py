@@ -127,7 +127,7 @@ def diamond_state():
     ("stiffness", ("stiffness_scale", None, {"scale": 1.01}), 0.01, None),
     ("region.north", ("regional_stiffness", "north", {"scale": 1.01}), 0.01, None),
     ("blend", ("material_nonlinearity", None, {"blend": 0.05}), 0.05, None),
-    ("base_compliance", ("compliant_base", None, {"stiffness_n_per_mm": 1e5}), 1e-5, None),
+    ("base_compliance", ("compliant_base", None, {"stiffness_n_per_mm": 2.0}), 0.5, None),
     ("cable.north", None, 0.1, 0),
     ("cable.west", None, 0.1, 1),
 ])
@@ -135,7 +135,8 @@ def test_sensitivity_columns_match_re_solved_equilibria(diamond_state, column, e
                                                         cable_change):
     """K^-1 dR/dp with the cables' constraints against a finite difference of two full
     static solves (the effect library's own FE model), within 2% (the difference's own
-    curvature error; compliant_base is linear in 1/k only as k -> inf: at 1e5 N/mm)."""
+    curvature error). compliant_base is the soft clamp's rigid give (diagnosis.sensitivities):
+    its column against a base of 2 N/mm, which sinks the body 3 mm, within 8%."""
     robot, actuation, solution, columns, names = diamond_state
     model = robot.nominal_fe_model
     inputs = actuation.copy()
@@ -149,4 +150,6 @@ def test_sensitivity_columns_match_re_solved_equilibria(diamond_state, column, e
     n = robot.mesh.node_count
     expected = (moved.positions_mm[:n] - solution.positions_mm[:n]) / step
     predicted = columns[names.index(column)][:n]
-    assert np.linalg.norm(predicted - expected) < 0.02 * np.linalg.norm(expected)
+    # the rigid give leaves out the clamp's own distortion: 5.5% of the 3 mm sink at 2 N/mm
+    limit = 0.08 if column == "base_compliance" else 0.02
+    assert np.linalg.norm(predicted - expected) < limit * np.linalg.norm(expected)

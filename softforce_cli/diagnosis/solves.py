@@ -41,6 +41,8 @@ from softforce_cli.model.robot import Robot, with_element
 SETTINGS = SolverSettings(step_tolerance_mm=1e-2, force_tolerance_n=1e-3)
 # Bump when what a cached solve means changes.
 CACHE_VERSION = 2
+# Bump when what the cached sensitivity columns mean changes (2: compliant_base's rigid give).
+COLUMNS_VERSION = 2
 Progress = Callable[[int, int], None]
 
 
@@ -199,7 +201,7 @@ def _solve_state(s, previous, accurate, model, actuation, cache, columns, cables
         start = positions[previous] + np.einsum(
             "a,ani->ni", actuation[s] - actuation[previous], sensitivity[previous, cables])
     positions[s], tensions[s] = cache.solve(model, inputs, start)
-    key = f"{cache.key(model, inputs)}-columns-" + hashlib.sha256(
+    key = f"{cache.key(model, inputs)}-columns{COLUMNS_VERSION}-" + hashlib.sha256(
         " ".join(columns.names).encode()).hexdigest()[:12]
     stored = cache.load(key)
     if stored is not None and stored.get("columns", np.empty(0)).shape == sensitivity[s].shape:
