@@ -25,6 +25,7 @@ import json
 import pickle
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -120,12 +121,15 @@ def truth_pose(recording: Path) -> Path:
     return path
 
 
-def sense_and_score(recording: Path, robot: Path, pose: Path, name: str) -> dict:
-    """Sense a recording, compare it with its truth: the error summary, frame times."""
+def sense_and_score(recording: Path, robot: Path, pose: Path, name: str,
+                    overrides: dict | None = None) -> dict:
+    """Sense a recording, compare it with its truth: the error summary, frame times.
+    overrides: further {"table.key": value} settings (estimation.settings.load_settings)."""
     folder = OUT / name
     inputs = SenseInputs(recording=recording, robot=robot, calibration=pose, output=folder,
                          force=True, tare_frames=TARE_FRAMES,
-                         overrides={"estimation.updates_per_frame": UPDATES})
+                         overrides={"estimation.updates_per_frame": UPDATES,
+                                    **(overrides or {})})
     prepared = prepare_sensing(inputs)
     cpu = time.process_time()
     run_sensing(prepared.frames, prepared.sensor, folder, prepared.header, force=True)
@@ -195,30 +199,59 @@ def main() -> None:
     parser.add_argument("--height", type=int, default=480)
     parser.add_argument("--resense", action="store_true",
                         help="sense again even where a result is cached")
+    parser.add_argument("--features", type=int, nargs="+", default=list(FEATURE_COUNTS),
+                        help="feature counts to sense with (default: all)")
+    parser.add_argument("--noise", type=float, nargs="+", default=None,
+                        help="only the recordings of these noise scales (default: all)")
+    parser.add_argument("--set", action="append", default=[], metavar="TABLE.KEY=VALUE",
+                        help="a sense setting for every run, e.g. estimation.force_model=normal "
+                             "(the runs go to their own folders and results file with --tag)")
+    parser.add_argument("--tag", default="",
+                        help="name of this variant: its folders and results file end with it, "
+                             "and the figure and results.json are left alone")
     args = parser.parse_args()
+    overrides = dict(_setting(text) for text in args.set)
+    if overrides and not args.tag:
+        parser.error("--set needs --tag (a variant must not overwrite the default's results)")
     paths = recordings(args.width, args.height)
     pose = truth_pose(paths[1.0, SEED])
-    cache_file = OUT / f"sense_results_{args.width}x{args.height}.json"
-    cached = {} if args.resense or not cache_file.exists() else json.loads(
-        cache_file.read_text())
-    for count in FEATURE_COUNTS:
+    suffix = f"_{args.tag}" if args.tag else ""
+    cache_file = OUT / f"sense_results_{args.width}x{args.height}{suffix}.json"
+    cached = {} if not cache_file.exists() else json.loads(cache_file.read_text())
+    for count in args.features:
         robot = robot_variant(count)
         for (scale, seed), recording in paths.items():
+            if args.noise is not None and scale not in args.noise:
+                continue
             key = f"features{count}_noise{scale:g}" + ("" if seed == SEED else f"_seed{seed}")
-            if key not in cached:
+            if args.resense or key not in cached:
                 began = time.perf_counter()
                 cached[key] = {"features": count, "noise_scale": scale, "seed": seed,
-                               **sense_and_score(recording, robot, pose, key)}
+                               **sense_and_score(recording, robot, pose, key + suffix,
+                                                 overrides)}
                 print(f"{key}: {time.perf_counter() - began:.0f} s {cached[key]}",
                       file=sys.stderr)
                 atomic_write_text(cache_file, json.dumps(cached, indent=1), force=True)
     results = list(cached.values())
+    if args.tag:
+        print(json.dumps(results, indent=1))
+        return
     document = {"resolution": [args.width, args.height], "estimator": str(ESTIMATOR),
                 "scenario": str(SCENARIO), "hold_frames": HOLD_FRAMES,
                 "tare_frames": TARE_FRAMES, "updates": UPDATES, "results": results}
     atomic_write_text(OUT / "results.json", json.dumps(document, indent=1), force=True)
     plot(results, FIGURE)
     print(json.dumps(document, indent=1))
+
+
+def _setting(text: str) -> tuple[str, object]:
+    """"estimation.force_model=normal" -> ("estimation.force_model", "normal"), numbers and
+    booleans as such (TOML's syntax for the value)."""
+    key, _, value = text.partition("=")
+    try:
+        return key, tomllib.loads(f"v = {value}")["v"]
+    except tomllib.TOMLDecodeError:
+        return key, value
 
 
 if __name__ == "__main__":

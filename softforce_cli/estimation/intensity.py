@@ -4,17 +4,22 @@
     s.t.     lam_a = lam_a^r                               force-controlled cables  (13)
              W_aa lam_a + W_af lam_f + delta_a_free = delta_a^r   displacement ones  (14)
              lam_f >= 0                                     unilateral contacts
+             mu lam_n >= |(lam_t1, lam_t2)|                 friction cones
 
 lam = [lam_a, lam_f]: cable tensions (N) then contact force intensities (N). W_el = [W_ea^N
 W_ef^N] projects them on the normals of the matched feature points (mm/N). The Tikhonov term
 rho keeps the problem well posed when two contacts sit close together (their columns of W_ef
 nearly coincide); it is relative to the mean squared column norm of W_ef, so it has no unit
 and does not depend on the robot's stiffness.
+
+A contact in a friction cone has three columns, along its inward normal and two tangents
+(lam_n, lam_t1, lam_t2): Coulomb's law bounds the tangential force by mu times the normal
+one, a second-order cone, which Clarabel handles as it does the sign bounds.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import clarabel
 import numpy as np
@@ -37,7 +42,10 @@ class IntensityProblem:
     W_ea (e, a) mm/N, W_ef (e, f) mm/N: normal motion of the e matched features per unit cable
     tension and per unit contact force; delta_e_free (e,) mm and observed_mm (e,) mm: free and
     observed normal coordinates (x . n); W_aa (a, a), W_af (a, f) mm/N and delta_a_free (a,) mm
-    for the cables (eq. 4); unilateral (f,) bool: columns whose force may only push (>= 0).
+    for the cables (eq. 4); unilateral (f,) bool: columns whose force may only push (>= 0);
+    cones (k, 3) int: the (normal, tangent, tangent) columns of each contact in a friction
+    cone, with friction_coefficient mu (their columns are not also unilateral: the cone
+    makes the normal force >= 0).
     """
 
     W_ea: np.ndarray
@@ -48,6 +56,16 @@ class IntensityProblem:
     W_af: np.ndarray
     delta_a_free: np.ndarray
     unilateral: np.ndarray
+    cones: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=np.int64))
+    friction_coefficient: float = 0.0
+
+    def feasible(self, contact_forces_n: np.ndarray) -> bool:
+        """Whether forces (f,) satisfy the sign bounds and the friction cones."""
+        forces = contact_forces_n
+        cones = np.asarray(self.cones, dtype=np.int64).reshape(-1, 3)
+        tangential = np.linalg.norm(forces[cones[:, 1:]], axis=1)
+        return bool(np.all(forces[self.unilateral] >= 0.0)
+                    and np.all(self.friction_coefficient * forces[cones[:, 0]] >= tangential))
 
 
 @dataclass(frozen=True)
@@ -80,8 +98,10 @@ def solve_intensities(
     c = -W.T @ rhs
     A, b = _actuation_rows(problem, control, np.asarray(actuation, dtype=float))
     lam = _equality_qp(Q, c, A, b)
-    if lam is None or np.any(lam[a:][problem.unilateral] < 0.0):
-        lam = _bounded_qp(Q, c, A, b, a + np.flatnonzero(problem.unilateral))
+    if lam is None or not problem.feasible(lam[a:]):
+        cones = a + np.asarray(problem.cones, dtype=np.int64).reshape(-1, 3)
+        lam = _bounded_qp(Q, c, A, b, a + np.flatnonzero(problem.unilateral), cones,
+                          problem.friction_coefficient)
     return Intensities(lam[:a], lam[a:], W @ lam - rhs)
 
 
@@ -109,18 +129,29 @@ def _equality_qp(Q: np.ndarray, c: np.ndarray, A: np.ndarray, b: np.ndarray) -> 
 
 
 def _bounded_qp(
-    Q: np.ndarray, c: np.ndarray, A: np.ndarray, b: np.ndarray, nonnegative: np.ndarray
+    Q: np.ndarray, c: np.ndarray, A: np.ndarray, b: np.ndarray, nonnegative: np.ndarray,
+    friction_cones: np.ndarray | None = None, friction_coefficient: float = 0.0,
 ) -> np.ndarray:
-    """The QP with lam[nonnegative] >= 0, by Clarabel (an interior-point method)."""
+    """The QP with lam[nonnegative] >= 0 and, for each row (n, t1, t2) of friction_cones
+    (k, 3), mu lam[n] >= |(lam[t1], lam[t2])|, by Clarabel (an interior-point method)."""
     n = len(c)
-    bound_rows = -np.eye(n)[nonnegative]
+    friction_cones = np.zeros((0, 3), np.int64) if friction_cones is None else friction_cones
+    identity = np.eye(n)
+    bound_rows = -identity[nonnegative]
+    # Clarabel's constraints are A x + s = b, s in a cone: s = (mu lam_n, lam_t1, lam_t2)
+    # lies in the second-order cone when mu lam_n >= |(lam_t1, lam_t2)|
+    scale = np.array([friction_coefficient, 1.0, 1.0])
+    cone_rows = -(identity[friction_cones] * scale[None, :, None]).reshape(-1, n)
     settings = clarabel.DefaultSettings()
     settings.verbose = False
     settings.tol_gap_abs = settings.tol_gap_rel = settings.tol_feas = CLARABEL_TOLERANCE
-    cones = [clarabel.ZeroConeT(len(b)), clarabel.NonnegativeConeT(len(nonnegative))]
+    cones = [clarabel.ZeroConeT(len(b))]
+    cones += [clarabel.NonnegativeConeT(len(nonnegative))] if len(nonnegative) else []
+    cones += [clarabel.SecondOrderConeT(3) for _ in range(len(friction_cones))]
     solver = clarabel.DefaultSolver(
-        sp.triu(sp.csc_matrix(Q), format="csc"), c, sp.csc_matrix(np.vstack([A, bound_rows])),
-        np.r_[b, np.zeros(len(nonnegative))], cones, settings,
+        sp.triu(sp.csc_matrix(Q), format="csc"), c,
+        sp.csc_matrix(np.vstack([A, bound_rows, cone_rows])),
+        np.r_[b, np.zeros(len(nonnegative) + len(cone_rows))], cones, settings,
     )
     solution = solver.solve()
     if solution.status not in (clarabel.SolverStatus.Solved, clarabel.SolverStatus.AlmostSolved):

@@ -12,7 +12,7 @@ towards the observed robot, and the next frame starts from there.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -55,12 +55,14 @@ class KnownContact:
 @dataclass(frozen=True)
 class _Columns:
     """The contact force columns of one update: their attachment, directions (f, 3), which
-    may only push, and for each contact the columns that make up its force."""
+    may only push, for each contact the columns that make up its force, and the (normal,
+    tangent, tangent) columns (k, 3) of the contacts in a friction cone."""
 
     points: Attachment
     directions: np.ndarray
     unilateral: np.ndarray
     groups: tuple[np.ndarray, ...]
+    cones: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=np.int64))
 
 
 @dataclass(frozen=True)
@@ -245,7 +247,8 @@ class ForceSensor:
 
     def _columns(self, contact_nodes: np.ndarray, taring: bool = False) -> _Columns:
         """Force columns for the contacts: along the inward normal (one push each), the known
-        direction, or three free axes per contact ("3d"); none while taring."""
+        direction, the inward normal and two tangents in a friction cone ("cone"), or three
+        free axes per contact ("3d"); none while taring."""
         if self.known_contact is not None and not taring:
             direction = np.asarray(self.known_contact.direction, dtype=float)[None]
             return _Columns(self.known_points, direction, np.ones(1, bool), (np.arange(1),))
@@ -254,9 +257,15 @@ class ForceSensor:
             points = Attachment.at_nodes(np.repeat(contact_nodes, 3))
             groups = tuple(np.arange(3 * i, 3 * i + 3) for i in range(c))
             return _Columns(points, np.tile(AXES, (c, 1)), np.zeros(3 * c, bool), groups)
+        inward = -self.node_normals()[contact_nodes]
+        if self.settings.estimation.force_model == "cone":
+            points = Attachment.at_nodes(np.repeat(contact_nodes, 3))
+            directions = np.concatenate([inward[:, None], tangent_basis(inward)], axis=1)
+            cones = np.arange(3 * c).reshape(c, 3)
+            return _Columns(points, directions.reshape(-1, 3), np.zeros(3 * c, bool),
+                            tuple(cones), cones)
         groups = tuple(np.array([i]) for i in range(c))
-        return _Columns(Attachment.at_nodes(contact_nodes), -self.node_normals()[contact_nodes],
-                        np.ones(c, bool), groups)
+        return _Columns(Attachment.at_nodes(contact_nodes), inward, np.ones(c, bool), groups)
 
     def update(self, matches: FeatureMatches, contact_nodes: np.ndarray,
                clock: _Clock | None = None, taring: bool = False) -> Update | None:
@@ -281,7 +290,8 @@ class ForceSensor:
             projected.W_ea, projected.W_ef, projected.delta_e_free,
             matches.normal_mm[matched] - (0.0 if taring else self.tare_offsets_mm[matched]),
             projected.W_aa, projected.W_af,
-            projected.delta_a_free, columns.unilateral,
+            projected.delta_a_free, columns.unilateral, columns.cones,
+            self.settings.estimation.friction_coefficient,
         )
         solution = solve_intensities(problem, self.controls, self.actuation,
                                      self.settings.estimation.regularization)
@@ -339,6 +349,16 @@ class _Clock:
         now = time.perf_counter()
         self.timings[stage] = self.timings.get(stage, 0.0) + 1e3 * (now - self.last)
         self.last = now
+
+
+def tangent_basis(normals: np.ndarray) -> np.ndarray:
+    """(c, 2, 3) two unit tangents orthogonal to each other and to each unit normal (c, 3)."""
+    normals = np.asarray(normals, dtype=float).reshape(-1, 3)
+    # cross with the axis least aligned with the normal: never a near-zero product
+    axis = np.eye(3)[np.argmin(np.abs(normals), axis=1)]
+    first = np.cross(normals, axis)
+    first /= np.linalg.norm(first, axis=1, keepdims=True)
+    return np.stack([first, np.cross(normals, first)], axis=1)
 
 
 def learned_robot_colour(frame: RgbdFrame, robot_from_camera: RigidTransform,

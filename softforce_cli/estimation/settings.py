@@ -19,7 +19,7 @@ from typing import Any
 from softforce_cli.errors import SensingError
 from softforce_cli.vision.settings import VisionSettings
 
-FORCE_MODELS = ("normal", "3d")
+FORCE_MODELS = ("normal", "cone", "3d")
 CONTACT_AT = ("node", "feature")
 
 
@@ -28,8 +28,19 @@ class EstimationSettings:
     """The intensity estimator's settings, with why.
 
     force_model        : "normal": one push per contact along the inward surface normal (the
-                         paper; a probe or a finger cannot pull); "3d": a free force vector per
-                         contact (friction, a hanging weight at an unknown angle).
+                         paper; a probe or a finger cannot pull); "cone": a force vector
+                         inside the Coulomb friction cone around the inward normal (a push at
+                         up to atan(friction_coefficient) from the normal, the data choosing
+                         the direction); "3d": a free force vector per contact (a hanging
+                         weight at an unknown angle, a pull). A probe pushed at 10-16 degrees
+                         from the deformed normal (the sample probes on the bent bar) reads
+                         20-30% high with "normal": the bar is far stiffer along itself than
+                         across, so a small error in the assumed direction is a large one in
+                         the intensity (docs/sensing.md, "Why the probes read high").
+    friction_coefficient : 0.5 (cone half-angle 27 degrees); the contact's tangential force
+                         is at most this times its normal force. Silicone against a rigid
+                         probe grips at 0.5-1; the smaller bound keeps depth noise from
+                         tilting the force as far as it could.
     contact_at         : "node": a detected contact acts at the surface node nearest to its
                          centre; "feature": at the nearest feature point, as in the paper. The
                          nodes are 3-6 mm apart, the 51 features about 30 mm: a force moved by
@@ -58,7 +69,8 @@ class EstimationSettings:
     regularization     : relative Tikhonov weight on contact forces (estimation.intensity).
     """
 
-    force_model: str = "normal"
+    force_model: str = "cone"
+    friction_coefficient: float = 0.5
     contact_at: str = "node"
     updates_per_frame: int = 2
     rematch_mm: float = 0.1
@@ -75,6 +87,9 @@ class EstimationSettings:
         if self.contact_at not in CONTACT_AT:
             raise SensingError(f"estimation.contact_at {self.contact_at!r} unknown; use one of "
                                f"{', '.join(CONTACT_AT)}")
+        if not self.friction_coefficient > 0:
+            raise SensingError("estimation.friction_coefficient must be > 0 (use force_model = "
+                               "\"normal\" for a push along the normal only)")
         if self.relinearize_mm < 0 or self.rematch_mm < 0:
             raise SensingError("estimation.relinearize_mm and rematch_mm must be >= 0")
         if self.updates_per_frame < 1:
