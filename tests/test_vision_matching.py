@@ -38,7 +38,10 @@ def test_normal_offsets_of_a_shifted_sphere_are_the_analytic_ones():
     np.testing.assert_allclose(matches.offset_mm, expected, atol=0.05)
     np.testing.assert_allclose(matches.normal_mm, RADIUS + expected, atol=0.05)
     assert np.all(matches.line_distance_mm < 0.5)
-    np.testing.assert_allclose(np.linalg.norm(matches.points_mm - shift, axis=1), RADIUS)
+    # the observed point is the mean of the points within match_mean_mm of the line: on the
+    # sphere to within its curvature's sagitta over that radius (0.02 mm)
+    np.testing.assert_allclose(np.linalg.norm(matches.points_mm - shift, axis=1), RADIUS,
+                               atol=0.05)
 
 
 def test_features_facing_away_from_the_camera_are_hidden():

@@ -12,7 +12,7 @@ from softforce_cli.cli.common import ForceOption, stderr, stdout
 from softforce_cli.cli.interrupt import deferred_interrupt, interrupted_exit_code, signal_name
 from softforce_cli.errors import SensingError
 
-FORCE_MODELS = ("normal", "3d")
+FORCE_MODELS = ("axis", "normal", "cone", "3d")
 
 
 def sense(
@@ -37,8 +37,10 @@ def sense(
         "--settings", help="TOML with [vision] and [estimation] thresholds (docs/sensing.md).")
     ] = None,
     force_model: Annotated[str | None, typer.Option(
-        "--force-model", help="normal: one push along the inward normal per contact (the "
-        "paper); 3d: a free force vector per contact.")] = None,
+        "--force-model", help="axis (default): one push per contact along the pushing "
+        "object's axis (the normal where it has none); normal: along the inward normal (the "
+        "paper); cone: within the friction cone around the normal; 3d: a free force vector "
+        "per contact.")] = None,
     updates: Annotated[int | None, typer.Option(
         "--updates", help="FE updates per frame (default 2).")] = None,
     record: Annotated[Path | None, typer.Option(

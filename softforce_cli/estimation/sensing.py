@@ -12,6 +12,7 @@ towards the observed robot, and the next frame starts from there.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,7 +30,7 @@ from softforce_cli.fem.attachment import Attachment
 from softforce_cli.fem.statics import solve_equilibrium
 from softforce_cli.model.mesh import vertex_normals
 from softforce_cli.model.robot import Robot
-from softforce_cli.vision.contacts import nearest_features
+from softforce_cli.vision.contacts import nearest_features, object_axes
 from softforce_cli.vision.feature_matching import FeatureMatches, match_features
 from softforce_cli.vision.filters import crop_box_from_bounds
 from softforce_cli.vision.pipeline import VisionResult, process_frame
@@ -153,35 +154,20 @@ class ForceSensor:
         if len(segmentation.robot) < self.settings.estimation.min_robot_points:
             return FrameEstimate(index, time_s, "norobot", timings_ms=timings, **counts)
         taring = self.tare_left > 0
-        contact_nodes = np.zeros(0, np.int64) if taring else self._contact_nodes(vision)
+        contact_nodes, axes = (np.zeros(0, np.int64), np.zeros((0, 3))) if taring \
+            else self._contact_nodes(vision)
         clock = _Clock(timings)
         saved = (self.positions, self.tensions)
-        outcome: Update | None = None
-        matches = vision.matches
         try:
-            for _ in range(self.settings.estimation.updates_per_frame):
-                if outcome is not None:
-                    matches = self._match(segmentation)
-                    clock.lap("matching")
-                matched_at = self.positions[self.robot.feature_nodes]
-                update = self.update(matches, contact_nodes, clock, taring)
-                if update is None:
-                    break
-                outcome = update
-                moved = np.linalg.norm(self.positions[self.robot.feature_nodes] - matched_at,
-                                       axis=1).max(initial=0.0)
-                if moved <= self.settings.estimation.rematch_mm:
-                    break  # matching again would find the same points: the frame is done
+            outcome = self.settle(vision.matches, lambda: self._match(segmentation),
+                                  contact_nodes, clock, axes)
         except SolverError:
             self.positions, self.tensions = saved
             self.linear = None
             return FrameEstimate(index, time_s, "solver", timings_ms=timings, **counts)
         if outcome is None:
             return FrameEstimate(index, time_s, "fewmatches", timings_ms=timings, **counts)
-        status = "ok"
-        if taring:
-            self._add_tare(outcome)
-            status = "tare"
+        status = "tare" if taring else "ok"
         contacts = () if taring else self._contacts(outcome)
         clock.lap("update")
         matches = outcome.matches
@@ -193,6 +179,38 @@ class ForceSensor:
             fit_rms_mm=float(np.sqrt(np.mean(outcome.residual_mm**2))),
             cable_tensions_n=self.tensions.copy(), timings_ms=timings,
         )
+
+    def settle(self, matches: FeatureMatches, rematch: Callable[[], FeatureMatches],
+               contact_nodes: np.ndarray, clock: _Clock | None = None,
+               contact_axes: np.ndarray | None = None) -> Update | None:
+        """One frame's FE updates from its first matches at the current configuration:
+        update, then rematch() at the moved configuration and update again, up to
+        updates_per_frame times, stopping once an update moved no feature point more than
+        rematch_mm. Contact forces act at the mesh nodes contact_nodes (c,) (or at the known
+        contact), with force_model "axis" along contact_axes (c, 3) where not NaN (the
+        pushing object's axis); while taring there are none, and the frame's offsets join
+        the tare. The
+        last update, or None when too few features match (the configuration is then that of
+        the updates made)."""
+        clock = clock or _Clock({})
+        taring = self.tare_left > 0
+        outcome: Update | None = None
+        for _ in range(self.settings.estimation.updates_per_frame):
+            if outcome is not None:
+                matches = rematch()
+                clock.lap("matching")
+            matched_at = self.positions[self.robot.feature_nodes]
+            update = self.update(matches, contact_nodes, clock, taring, contact_axes)
+            if update is None:
+                break
+            outcome = update
+            moved = np.linalg.norm(self.positions[self.robot.feature_nodes] - matched_at,
+                                   axis=1).max(initial=0.0)
+            if moved <= self.settings.estimation.rematch_mm:
+                break  # matching again would find the same points: the frame is done
+        if taring and outcome is not None:
+            self._add_tare(outcome)
+        return outcome
 
     def _vision(self, frame: RgbdFrame) -> VisionResult:
         """The vision stage at the current configuration (the robot's colour learned on the
@@ -218,17 +236,25 @@ class ForceSensor:
                               self.settings.vision, camera_mm=self.transform.translation_mm,
                               robot_tree=segmentation.robot_tree)
 
-    def _contact_nodes(self, vision: VisionResult) -> np.ndarray:
+    def _contact_nodes(self, vision: VisionResult) -> tuple[np.ndarray, np.ndarray]:
         """(c,) mesh nodes where the detected contacts act (none with a known contact): the
         surface node nearest to each contact centre, or with contact_at = "feature" the
-        paper's nearest feature point."""
+        paper's nearest feature point; and (c, 3) the axis of the object pushing there
+        (vision.contacts.object_axes; NaN where it has none, and not computed unless
+        force_model is "axis")."""
         if self.known_contact is not None:
-            return np.zeros(0, dtype=np.int64)
+            return np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+        centres = vision.contacts.centres_mm
         if self.settings.estimation.contact_at == "feature":
-            return np.unique(self.robot.feature_nodes[vision.contact_features])
-        surface = self.robot.mesh.surface_nodes
-        _, nearest = cKDTree(self.positions[surface]).query(vision.contacts.centres_mm)
-        return np.unique(surface[np.asarray(nearest, dtype=np.int64)])
+            nodes = self.robot.feature_nodes[vision.contact_features]
+        else:
+            surface = self.robot.mesh.surface_nodes
+            _, nearest = cKDTree(self.positions[surface]).query(centres)
+            nodes = surface[np.asarray(nearest, dtype=np.int64)]
+        nodes, first = np.unique(nodes, return_index=True)
+        if self.settings.estimation.force_model != "axis":
+            return nodes, np.full((len(nodes), 3), np.nan)
+        return nodes, object_axes(centres, vision.segmentation.objects.points_mm)[first]
 
     @property
     def tare_offsets_mm(self) -> np.ndarray:
@@ -245,7 +271,8 @@ class ForceSensor:
         self._tare_count[matched] += 1
         self.tare_left -= 1
 
-    def _columns(self, contact_nodes: np.ndarray, taring: bool = False) -> _Columns:
+    def _columns(self, contact_nodes: np.ndarray, taring: bool = False,
+                 axes: np.ndarray | None = None) -> _Columns:
         """Force columns for the contacts: along the inward normal (one push each), the known
         direction, the inward normal and two tangents in a friction cone ("cone"), or three
         free axes per contact ("3d"); none while taring."""
@@ -264,17 +291,20 @@ class ForceSensor:
             cones = np.arange(3 * c).reshape(c, 3)
             return _Columns(points, directions.reshape(-1, 3), np.zeros(3 * c, bool),
                             tuple(cones), cones)
+        if self.settings.estimation.force_model == "axis" and axes is not None:
+            inward = pushing_directions(inward, axes, self.settings.estimation.max_axis_angle_deg)
         groups = tuple(np.array([i]) for i in range(c))
         return _Columns(Attachment.at_nodes(contact_nodes), inward, np.ones(c, bool), groups)
 
     def update(self, matches: FeatureMatches, contact_nodes: np.ndarray,
-               clock: _Clock | None = None, taring: bool = False) -> Update | None:
+               clock: _Clock | None = None, taring: bool = False,
+               contact_axes: np.ndarray | None = None) -> Update | None:
         """One FE update (eq. 10-14, then eq. 6) from feature matches at the current
         configuration, with contact forces at the mesh nodes contact_nodes (c,) (or at the
         known contact); None when too few features match for the unknowns."""
         clock = clock or _Clock({})
         _, normals = self.feature_geometry()
-        columns = self._columns(contact_nodes, taring)
+        columns = self._columns(contact_nodes, taring, contact_axes)
         matched = matches.matched
         unknowns = len(self.controls) + len(columns.directions)
         if matched.sum() < max(self.settings.estimation.min_matched, unknowns + 1):
@@ -349,6 +379,16 @@ class _Clock:
         now = time.perf_counter()
         self.timings[stage] = self.timings.get(stage, 0.0) + 1e3 * (now - self.last)
         self.last = now
+
+
+def pushing_directions(inward: np.ndarray, axes: np.ndarray, max_angle_deg: float) -> np.ndarray:
+    """(c, 3) the direction of each contact's push: its object's axis (c, 3) where known and
+    within max_angle_deg of the inward normal (c, 3), else the inward normal."""
+    inward = np.asarray(inward, dtype=float).reshape(-1, 3)
+    axes = np.asarray(axes, dtype=float).reshape(-1, 3)
+    cosine = np.einsum("ij,ij->i", np.nan_to_num(axes), inward)
+    usable = np.isfinite(axes).all(axis=1) & (cosine >= np.cos(np.radians(max_angle_deg)))
+    return np.where(usable[:, None], np.nan_to_num(axes), inward)
 
 
 def tangent_basis(normals: np.ndarray) -> np.ndarray:

@@ -19,7 +19,7 @@ from typing import Any
 from softforce_cli.errors import SensingError
 from softforce_cli.vision.settings import VisionSettings
 
-FORCE_MODELS = ("normal", "cone", "3d")
+FORCE_MODELS = ("normal", "axis", "cone", "3d")
 CONTACT_AT = ("node", "feature")
 
 
@@ -27,20 +27,28 @@ CONTACT_AT = ("node", "feature")
 class EstimationSettings:
     """The intensity estimator's settings, with why.
 
-    force_model        : "normal": one push per contact along the inward surface normal (the
-                         paper; a probe or a finger cannot pull); "cone": a force vector
-                         inside the Coulomb friction cone around the inward normal (a push at
-                         up to atan(friction_coefficient) from the normal, the data choosing
-                         the direction); "3d": a free force vector per contact (a hanging
-                         weight at an unknown angle, a pull). A probe pushed at 10-16 degrees
-                         from the deformed normal (the sample probes on the bent bar) reads
-                         20-30% high with "normal": the bar is far stiffer along itself than
-                         across, so a small error in the assumed direction is a large one in
-                         the intensity (docs/sensing.md, "Why the probes read high").
-    friction_coefficient : 0.5 (cone half-angle 27 degrees); the contact's tangential force
-                         is at most this times its normal force. Silicone against a rigid
-                         probe grips at 0.5-1; the smaller bound keeps depth noise from
-                         tilting the force as far as it could.
+    force_model        : "axis": one push per contact along the axis of the object pushing
+                         there (a probe, a finger: the principal direction of its points near
+                         the contact, vision.contacts.object_axes), or along the inward
+                         normal where the object shows no axis or its axis is more than
+                         max_axis_angle_deg from the normal; "normal": one push along the
+                         inward surface normal of the current configuration (the paper; a
+                         probe or a finger cannot pull); "cone": a force vector inside the
+                         Coulomb friction cone around the inward normal (friction_coefficient;
+                         the data choose the direction); "3d": a free force vector per
+                         contact (a hanging weight at an unknown angle, a pull). The intensity
+                         hangs on the direction: the sample probes push 10-16 degrees from the
+                         bent bar's normal, and "normal" reads them 26-33% high even from
+                         perfect observations, because the bar is far stiffer along itself
+                         than across; "cone" reads them right from perfect observations but
+                         lets depth noise tilt the force towards the stiff direction, which
+                         inflates it (docs/sensing.md, "Why the probes read high").
+    friction_coefficient : 0.5 (cone half-angle 27 degrees), "cone" only: the tangential force
+                         is at most this times the normal force (silicone against a rigid
+                         probe grips at 0.5-1; the smaller bound limits the tilt noise buys).
+    max_axis_angle_deg : 60; "axis" only: an object axis further than this from the inward
+                         normal is not a push into the surface (an object lying along the
+                         robot, or a misfit): the normal is used instead.
     contact_at         : "node": a detected contact acts at the surface node nearest to its
                          centre; "feature": at the nearest feature point, as in the paper. The
                          nodes are 3-6 mm apart, the 51 features about 30 mm: a force moved by
@@ -69,8 +77,9 @@ class EstimationSettings:
     regularization     : relative Tikhonov weight on contact forces (estimation.intensity).
     """
 
-    force_model: str = "cone"
+    force_model: str = "axis"
     friction_coefficient: float = 0.5
+    max_axis_angle_deg: float = 60.0
     contact_at: str = "node"
     updates_per_frame: int = 2
     rematch_mm: float = 0.1
@@ -87,6 +96,8 @@ class EstimationSettings:
         if self.contact_at not in CONTACT_AT:
             raise SensingError(f"estimation.contact_at {self.contact_at!r} unknown; use one of "
                                f"{', '.join(CONTACT_AT)}")
+        if not 0 < self.max_axis_angle_deg < 90:
+            raise SensingError("estimation.max_axis_angle_deg must be in (0, 90)")
         if not self.friction_coefficient > 0:
             raise SensingError("estimation.friction_coefficient must be > 0 (use force_model = "
                                "\"normal\" for a push along the normal only)")

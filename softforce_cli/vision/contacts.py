@@ -102,3 +102,42 @@ def nearest_features(centres_mm: np.ndarray, feature_positions_mm: np.ndarray) -
         return np.zeros(0, dtype=np.int64)
     _, index = cKDTree(np.asarray(feature_positions_mm, dtype=float)).query(centres)
     return np.asarray(index, dtype=np.int64)
+
+
+# An object's points within this of a contact centre give its axis: long enough to cover
+# 40 mm of a 10 mm probe or a finger, short enough to stay clear of a second object
+# touching another bar of the Diamond 60 mm away.
+AXIS_RADIUS_MM = 40.0
+# The axis is taken when the points' spread along it is this many times their spread
+# across (the ratio of the covariance's two largest eigenvalues): a rod seen over 40 mm
+# gives about 20, a ball or a palm about 1.
+AXIS_ELONGATION = 4.0
+
+
+def object_axes(centres_mm: np.ndarray, object_points_mm: np.ndarray,
+                radius_mm: float = AXIS_RADIUS_MM,
+                elongation: float = AXIS_ELONGATION) -> np.ndarray:
+    """The axis of the object touching at each contact: the principal direction of the
+    object points within radius_mm of the centre, pointing from them towards the centre
+    (the way an elongated object pushes) -> (c, 3) unit vectors, NaN where the points show
+    no axis (fewer than 10, or not elongation times longer than wide).
+
+    centres_mm (c, 3), object_points_mm (k, 3), robot frame.
+    """
+    centres = np.asarray(centres_mm, dtype=float).reshape(-1, 3)
+    objects = np.asarray(object_points_mm, dtype=float).reshape(-1, 3)
+    axes = np.full((len(centres), 3), np.nan)
+    if len(objects) == 0:
+        return axes
+    near = cKDTree(objects).query_ball_point(centres, radius_mm)
+    for k, indices in enumerate(near):
+        if len(indices) < 10:
+            continue
+        points = objects[indices]
+        mean = points.mean(axis=0)
+        values, vectors = np.linalg.eigh(np.cov((points - mean).T))  # ascending
+        if values[2] < elongation * values[1]:
+            continue
+        axis = vectors[:, 2]
+        axes[k] = axis if axis @ (centres[k] - mean) >= 0 else -axis
+    return axes

@@ -77,10 +77,11 @@ def match_features(
     if camera_mm is not None:
         towards = np.einsum("ij,ij->i", np.asarray(camera_mm, dtype=float) - features, normals)
         visible = towards > 0
-    best, line = _nearest_to_lines(features, normals, visible, robot, settings, robot_tree)
+    best, line, mean = _nearest_to_lines(features, normals, visible, robot, settings,
+                                         robot_tree)
     near_line = visible & (best >= 0) & (line <= settings.match_line_mm)
     found = np.full((p, 3), np.nan)
-    found[near_line] = robot[best[near_line]]
+    found[near_line] = mean[near_line]
     too_far = near_line & (np.linalg.norm(found - features, axis=1) > settings.match_limit_mm)
     matched = near_line & ~too_far
     points = np.where(matched[:, None], found, np.nan)
@@ -102,9 +103,12 @@ def _nearest_to_lines(
     robot: np.ndarray,
     settings: VisionSettings,
     robot_tree: cKDTree | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For each active feature, the robot point nearest to its normal line among those within
-    match_search_mm of the feature -> index (p,) int64 (-1: none) and distance (p,) mm (NaN).
+    match_search_mm of the feature -> index (p,) int64 (-1: none), distance (p,) mm (NaN),
+    and the observed point (p, 3) mm (NaN): the mean of the candidates within match_mean_mm
+    of the line and within match_line_mm along it of the nearest one (that point alone when
+    none other is).
 
     Only points near the line can match, so candidates come from balls around samples of the
     line at steps of match_line_mm: every point within match_line_mm of the line (and within
@@ -114,9 +118,41 @@ def _nearest_to_lines(
     p = len(features)
     best = np.full(p, -1, dtype=np.int64)
     line = np.full(p, np.nan)
+    mean = np.full((p, 3), np.nan)
     index = np.flatnonzero(active)
     if len(robot) == 0 or len(index) == 0:
-        return best, line
+        return best, line, mean
+    step = settings.match_line_mm
+    count = int(np.ceil(settings.match_search_mm / step))
+    offsets = step * np.arange(-count, count + 1)
+    samples = features[index, None, :] + offsets[None, :, None] * normals[index, None, :]
+    radius = float(np.hypot(settings.match_line_mm, step / 2))
+    sample_pairs = cKDTree(samples.reshape(-1, 3)).sparse_distance_matrix(
+        cKDTree(robot) if robot_tree is None else robot_tree, radius, output_type="ndarray"
+    )
+    # a point near two samples of the same line is one candidate
+    i, j = np.unique(np.c_[index[sample_pairs["i"] // len(offsets)],
+                           sample_pairs["j"].astype(np.int64)], axis=0).T
+    relative = np.take(robot, j, axis=0) - np.take(features, i, axis=0)
+    along = np.einsum("ij,ij->i", relative, np.take(normals, i, axis=0))
+    squared = np.einsum("ij,ij->i", relative, relative)
+    in_reach = squared <= settings.match_search_mm**2
+    i, j, along = i[in_reach], j[in_reach], along[in_reach]
+    to_line = np.sqrt(np.maximum(squared[in_reach] - along**2, 0.0))
+    order = np.lexsort((to_line, i))  # by feature, nearest to the line first
+    first = order[np.unique(i[order], return_index=True)[1]]
+    best[i[first]] = j[first]
+    line[i[first]] = to_line[first]
+    nearest_along = np.full(p, np.nan)
+    nearest_along[i[first]] = along[first]
+    keep = (to_line <= settings.match_mean_mm) & (
+        np.abs(along - nearest_along[i]) <= settings.match_line_mm)
+    keep[first] = True
+    counts = np.bincount(i[keep], minlength=p)
+    sums = np.stack([np.bincount(i[keep], robot[j[keep], a], p) for a in range(3)], axis=1)
+    has = counts > 0
+    mean[has] = sums[has] / counts[has, None]
+    return best, line, mean
     step = settings.match_line_mm
     count = int(np.ceil(settings.match_search_mm / step))
     offsets = step * np.arange(-count, count + 1)
@@ -131,10 +167,26 @@ def _nearest_to_lines(
     along = np.einsum("ij,ij->i", relative, np.take(normals, i, axis=0))
     squared = np.einsum("ij,ij->i", relative, relative)
     in_reach = squared <= settings.match_search_mm**2
-    i, j = i[in_reach], j[in_reach]
-    to_line = np.sqrt(np.maximum(squared[in_reach] - along[in_reach] ** 2, 0.0))
+    i, j, along = i[in_reach], j[in_reach], along[in_reach]
+    to_line = np.sqrt(np.maximum(squared[in_reach] - along**2, 0.0))
     order = np.lexsort((to_line, i))  # by feature, nearest to the line first
     first = order[np.unique(i[order], return_index=True)[1]]
     best[i[first]] = j[first]
     line[i[first]] = to_line[first]
-    return best, line
+    # a pair may be found from two samples of the line: count each point once
+    pairs = np.unique(np.c_[i, j, np.arange(len(i))][np.lexsort((j, i))][:, :2], axis=0,
+                      return_index=True)[1]
+    nearest_along = np.full(p, np.nan)
+    nearest_along[i[first]] = along[first]
+    close = (to_line <= settings.match_mean_mm) & (
+        np.abs(along - nearest_along[i]) <= settings.match_line_mm)
+    close[first] = True
+    keep = np.zeros(len(i), dtype=bool)
+    keep[np.lexsort((j, i))[pairs]] = True
+    keep &= close
+    keep[first] = True
+    counts = np.bincount(i[keep], minlength=p)
+    sums = np.stack([np.bincount(i[keep], robot[j[keep], a], p) for a in range(3)], axis=1)
+    has = counts > 0
+    mean[has] = sums[has] / counts[has, None]
+    return best, line, mean

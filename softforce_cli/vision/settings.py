@@ -80,6 +80,15 @@ class VisionSettings:
                              other arms or the apex 50-200 mm away (the paper's Fig. 3 shows
                              the search near the feature). Larger than d_l so that a match
                              beyond d_l is seen and rejected rather than silently missed.
+    match_mean_mm          : 1.5, the observed point is the mean of the robot points within
+                             this of the normal line (and within d_m along it of the nearest
+                             one), not the single nearest point: the paper's nearest point
+                             jumps by up to 1 mm between noise-free frames as holes and colour
+                             noise change which pixel is nearest, and the Diamond's features
+                             sit on the bars' edges, where the line leaves the body
+                             diagonally and the nearest point's depth along it depends on
+                             how close to the edge the camera sampled (docs/sensing.md, "Why
+                             the probes read high"). 0 keeps the nearest point.
 
     Other cameras:
     scale_to_camera        : True, the neighbour counts above (outlier_min_neighbours,
@@ -109,11 +118,13 @@ class VisionSettings:
     match_line_mm: float = 4.0
     match_limit_mm: float = 20.0
     match_search_mm: float = 30.0
+    match_mean_mm: float = 1.5
     scale_to_camera: bool = True
 
     def __post_init__(self) -> None:
         for name, value in vars(self).items():
-            may_be_zero = ("contact_min_neighbours", "outlier_min_neighbours", "scale_to_camera")
+            may_be_zero = ("contact_min_neighbours", "outlier_min_neighbours", "scale_to_camera",
+                           "match_mean_mm")
             if name not in may_be_zero and not value > 0:
                 raise ValueError(f"vision setting {name} must be positive, got {value}")
         if self.contact_min_neighbours < 0 or self.outlier_min_neighbours < 0:
