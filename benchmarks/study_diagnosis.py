@@ -120,7 +120,8 @@ def make_recording(case: str, seed: int, recording: Path) -> str | None:
     """
     scenario = recording.with_suffix(".toml")
     scenario.write_text(scenario_text(case, seed))
-    partial = recording.with_name(recording.stem + ".partial.mcap")
+    # this process's own name: two studies run at once never write into one file
+    partial = recording.with_name(f"{recording.stem}.partial-{os.getpid()}.mcap")
     made = softforce("simulate", scenario, "-o", partial, "--force")
     if made.returncode != 0:
         return made.stderr.strip()[-300:]
