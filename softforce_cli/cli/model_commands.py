@@ -177,6 +177,7 @@ def reduce(
     info = reduction.info
     summary = {"output": str(output), "element": element, "modes": info["modes"],
                "sampled_elements": info["sampled_elements"], "elements": info["elements"],
+               "sampled_points": info["sampled_points"], "points": info["points"],
                "validation_rms_mm": reduction.box.rms_error_mm,
                "training_s": round(info["total_s"], 1),
                "robot_key": f'[mesh] reduced = "{output.name}"'}
@@ -186,8 +187,10 @@ def reduce(
     table = Table(title=f"reduced model of {robot.name}", show_header=False)
     table.add_row("basis", f"{info['modes']} modes (POD energy tolerance "
                            f"{info['energy_tolerance']:g})")
-    table.add_row("sampled elements", f"{info['sampled_elements']} of {info['elements']} "
-                                      f"(ECSW residual {info['ecsw_residual']:.2g})")
+    table.add_row("sampled points", f"{info['sampled_points']} of {info['points']} quadrature "
+                                    f"points, in {info['sampled_elements']} of "
+                                    f"{info['elements']} elements (ECSW residual "
+                                    f"{info['ecsw_residual']:.2g})")
     table.add_row("validation", f"{reduction.box.rms_error_mm:.3f} mm RMS surface error at "
                                 "untrained actuations")
     table.add_row("training", f"{info['total_s']:.0f} s")

@@ -152,20 +152,28 @@ class FEModel:
         F (m, q, 3, 3): the whole law at every point, or (P2-P0) its mu terms at the main
         rule's points and its lambda terms at the lambda rule's."""
         m, q = F.shape[:2]
-        split = self.element.quadrature_count
-        runs = [(F, "all")] if split == q else [(F[:, :split], "mu"), (F[:, split:], "lambda")]
-        outputs = []
-        for stack, part in runs:
-            flat = stack.reshape(-1, 3, 3)
-            if with_tangent:
-                stress, tangent = self.material.stress_and_tangent(flat, part)
-                pair = (stress, tangent.reshape(-1, 9, 9))
-            else:
-                pair = self.material.energy_and_stress(flat, part)
-            outputs.append([a.reshape(m, -1, *a.shape[1:]) for a in pair])
-        stacked = [a[0] if len(a) == 1 else np.concatenate(a, axis=1)
-                   for a in zip(*outputs, strict=True)]
-        return stacked[0], stacked[1]
+        points = np.broadcast_to(np.arange(q), (m, q)).ravel()
+        pair = self.constitutive_at(F.reshape(-1, 3, 3), points, with_tangent)
+        return tuple(a.reshape(m, q, *a.shape[1:]) for a in pair)  # type: ignore[return-value]
+
+    def constitutive_at(self, F: np.ndarray, points: np.ndarray, with_tangent: bool
+                        ) -> tuple[np.ndarray, np.ndarray]:
+        """(energy density (p,), P (p, 3, 3)), or with_tangent (P, A (p, 9, 9)), at F
+        (p, 3, 3) taken at quadrature points `points` (p,) of the element's whole rule (main
+        rule first, then the lambda rule's): which terms of the law a point carries depends
+        on the rule it belongs to (hyper-reduction samples single points)."""
+        law = self.material.stress_and_tangent if with_tangent else self.material.energy_and_stress
+        if self.element.lambda_points is None:
+            first, second = law(F, "all")
+            return (first, second.reshape(-1, 9, 9)) if with_tangent else (first, second)
+        lam = np.asarray(points) >= self.element.quadrature_count
+        first = np.zeros((len(F), 3, 3) if with_tangent else len(F))
+        second = np.zeros((len(F), 9, 9) if with_tangent else (len(F), 3, 3))
+        for mask, part in ((~lam, "mu"), (lam, "lambda")):
+            if mask.any():
+                a, b = law(F[mask], part)
+                first[mask], second[mask] = a, b.reshape(second[mask].shape)
+        return first, second
 
     def energy_and_forces(self, positions_mm: np.ndarray) -> tuple[float, np.ndarray]:
         """Elastic energy (mJ) and internal forces g(x) (n, 3) N, sharing one stress pass."""

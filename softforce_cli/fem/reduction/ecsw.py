@@ -21,11 +21,15 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
+from softforce_cli.fem.element import deformation_gradients, gradient_operators
 from softforce_cli.fem.model import FEModel
 
 # Relative residual of the weighted element sums over the training set: 1e-3 keeps the
 # reduced forces and tangents within 0.1% of the exact projection on the training states.
 ECSW_TOLERANCE = 1e-3
+# The element pass (the first of two: elements, then single points among theirs) fits this
+# much tighter, so that the point pass can reach the tolerance with a subset of its points.
+POINT_TOLERANCE_FACTOR = 0.5
 
 
 @dataclass(frozen=True)
@@ -57,6 +61,45 @@ def tangent_contributions(model: FEModel, basis: np.ndarray, positions_mm: np.nd
     return np.einsum("mar,mad->drm", local, moved).reshape(-1, len(model.tets))
 
 
+def point_operators(model: FEModel, basis: np.ndarray, elements: np.ndarray) -> np.ndarray:
+    """(s, q, 9, r) G = B V_e: vec(dF) at every quadrature point of elements (s,) per unit
+    reduced coordinate (q counts the whole rule, a P2-P0 element's lambda points included)."""
+    local = basis[model.element_dofs[elements]]  # (s, 3k, r)
+    return gradient_operators(model.shape_gradients[elements]) @ local[:, None]
+
+
+def _point_terms(model: FEModel, elements: np.ndarray, positions_mm: np.ndarray,
+                 with_tangent: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(P (p, 9), A (p, 9, 9) or (p,) energy densities, weights (p,) mm^3) at every quadrature
+    point p of elements (s,), point-major within each element."""
+    F = deformation_gradients(positions_mm, model.tets[elements],
+                              model.shape_gradients[elements])
+    s, q = F.shape[:2]
+    points = np.tile(np.arange(q), s)
+    first, second = model.constitutive_at(F.reshape(-1, 3, 3), points, with_tangent)
+    stress = (first if with_tangent else second).reshape(-1, 9)
+    return stress, (second if with_tangent else first), model.law_weights_mm3[elements].ravel()
+
+
+def point_force_contributions(model: FEModel, operators: np.ndarray, elements: np.ndarray,
+                              positions_mm: np.ndarray) -> np.ndarray:
+    """(r, s q) w_p G_p^T vec P_p: each quadrature point's share of the reduced internal
+    forces at (n, 3), for the points of elements (s,) with their operators (s, q, 9, r)."""
+    stress, _, weights = _point_terms(model, elements, positions_mm, with_tangent=False)
+    G = operators.reshape(-1, 9, operators.shape[-1])
+    return np.einsum("pir,pi->rp", G, stress * weights[:, None])
+
+
+def point_tangent_contributions(model: FEModel, operators: np.ndarray, elements: np.ndarray,
+                                positions_mm: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """(d * r, s q), direction-major: w_p G_p^T A_p G_p Q, each quadrature point's share of
+    the reduced tangent applied to reduced directions Q (r, d)."""
+    _, tangent, weights = _point_terms(model, elements, positions_mm, with_tangent=True)
+    G = operators.reshape(-1, 9, operators.shape[-1])
+    moved = tangent @ (G @ directions) * weights[:, None, None]  # (p, 9, d)
+    return np.einsum("pir,pid->drp", G, moved).reshape(-1, len(G))
+
+
 def sparse_nnls(C: np.ndarray, b: np.ndarray, tolerance: float = ECSW_TOLERANCE,
                 max_elements: int | None = None,
                 progress: Callable[[int, int], None] | None = None) -> Sampling:
@@ -74,23 +117,29 @@ def sparse_nnls(C: np.ndarray, b: np.ndarray, tolerance: float = ECSW_TOLERANCE,
     d = C.T @ b
     scale = 1e-14 * float(np.abs(d).max(initial=0.0))
     active: list[int] = []
-    cross = np.zeros((m, 0))  # C^T C[:, active]
+    # C^T C[:, active] in the first len(active) columns of a buffer that grows by doubling:
+    # stacking a column per iteration would copy the whole (m, s) block every time
+    buffer = np.empty((m, min(limit, 64)))
+    factor = _GramCholesky()
     weights = np.zeros(0)
     residual2 = bb
     for _ in range(3 * m):
         if residual2 <= target or len(active) >= limit:
             break
+        cross = buffer[:, : len(active)]
         gradient = d - cross @ weights
         gradient[active] = -np.inf
         best = int(np.argmax(gradient))
         if gradient[best] <= scale:
             break  # optimal: no element lowers the residual
+        if len(active) == buffer.shape[1]:
+            buffer = np.hstack([buffer, np.empty((m, min(len(active), limit)))])
+        buffer[:, len(active)] = C.T @ C[:, best]
         active.append(best)
-        cross = np.column_stack([cross, C.T @ C[:, best]])
+        factor.append(buffer[active, len(active) - 1])
         weights = np.append(weights, 0.0)
         while True:
-            gram = cross[active]
-            trial = _solve_gram(gram, d[active])
+            trial = factor.solve(d[active])
             if np.all(trial > 0.0):
                 weights = trial
                 break
@@ -102,11 +151,12 @@ def sparse_nnls(C: np.ndarray, b: np.ndarray, tolerance: float = ECSW_TOLERANCE,
             keep[np.argmin(np.where(falling, weights, np.inf))] = False
             index = np.flatnonzero(keep)
             active = [active[i] for i in index]
-            cross = cross[:, index]
+            buffer[:, : len(index)] = buffer[:, index]
             weights = weights[index]
             if not active:
                 break
-        gram = cross[active]
+            factor.reset(buffer[active, : len(active)])
+        gram = buffer[active, : len(active)]
         residual2 = max(bb - 2 * weights @ d[active] + weights @ gram @ weights, 0.0)
         if progress is not None:
             progress(len(active), limit)
@@ -116,11 +166,59 @@ def sparse_nnls(C: np.ndarray, b: np.ndarray, tolerance: float = ECSW_TOLERANCE,
                     float(np.linalg.norm(residual) / max(np.sqrt(bb), 1e-300)))
 
 
-def _solve_gram(gram: np.ndarray, right: np.ndarray) -> np.ndarray:
-    """Least squares on the active columns through their Gram matrix (normal equations;
-    a tolerance of 1e-3 needs far less than their lost digits)."""
-    try:
-        factor = scipy.linalg.cho_factor(gram, check_finite=False)
-        return scipy.linalg.cho_solve(factor, right, check_finite=False)
-    except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
-        return np.linalg.lstsq(gram, right, rcond=None)[0]
+class _GramCholesky:
+    """Cholesky factor L L^T of the active columns' Gram matrix, grown a column at a time
+    (O(s^2) per column instead of a new O(s^3) factorisation per NNLS iteration: with ~2,000
+    active columns the difference is minutes). A column that is (numerically) dependent on
+    the others switches to least squares on the Gram matrix until the next reset."""
+
+    def __init__(self) -> None:
+        self.factor = np.empty((64, 64))
+        self.size = 0
+        self.gram: np.ndarray | None = None  # kept only while L is not valid
+
+    def append(self, column: np.ndarray) -> None:
+        """Add the new active column's Gram entries (s + 1,), its diagonal entry last."""
+        s = self.size
+        if self.gram is not None:
+            grown = np.zeros((s + 1, s + 1))
+            grown[:s, :s] = self.gram
+            grown[s, :], grown[:, s] = column, column
+            self.gram, self.size = grown, s + 1
+            return
+        if s + 1 > len(self.factor):
+            bigger = np.empty((2 * len(self.factor),) * 2)
+            bigger[:s, :s] = self.factor[:s, :s]
+            self.factor = bigger
+        L = self.factor[:s, :s]
+        below = scipy.linalg.solve_triangular(L, column[:s], lower=True, check_finite=False)
+        pivot = float(column[s] - below @ below)
+        if pivot <= 1e-12 * max(float(column[s]), 1e-300):
+            gram = L @ L.T
+            self.gram = np.block([[gram, column[:s, None]], [column[None, :s], column[s:]]])
+            self.size = s + 1
+            return
+        self.factor[s, :s] = below
+        self.factor[:s, s] = 0.0
+        self.factor[s, s] = np.sqrt(pivot)
+        self.size = s + 1
+
+    def reset(self, gram: np.ndarray) -> None:
+        """Refactor from a whole Gram matrix (s, s) (after columns left the active set)."""
+        self.size = len(gram)
+        try:
+            self.factor = np.empty((max(64, 2 * self.size),) * 2)
+            self.factor[: self.size, : self.size] = scipy.linalg.cholesky(
+                gram, lower=True, check_finite=False)
+            self.gram = None
+        except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
+            self.gram = np.array(gram)
+
+    def solve(self, right: np.ndarray) -> np.ndarray:
+        """Least squares on the active columns through the normal equations (a tolerance of
+        1e-3 needs far less than their lost digits)."""
+        if self.gram is not None:
+            return np.linalg.lstsq(self.gram, right, rcond=None)[0]
+        L = self.factor[: self.size, : self.size]
+        half = scipy.linalg.solve_triangular(L, right, lower=True, check_finite=False)
+        return scipy.linalg.solve_triangular(L.T, half, lower=False, check_finite=False)

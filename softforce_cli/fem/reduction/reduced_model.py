@@ -3,12 +3,13 @@
 Configurations are x = x_rest + V q with V (3n, r) orthonormal (zero on clamped dofs), and
 the reduced internal forces and tangent are sums over a few sampled elements e with weights
 w_e >= 0 (Farhat et al., "Dimensional reduction of nonlinear finite element dynamic models
-with finite rotations and energy-based mesh sampling and weighting", IJNME 98, 2014):
+with finite rotations and energy-based mesh sampling and weighting", IJNME 98, 2014),
+sampled here down to single quadrature points p with weights w_p >= 0:
 
-    f_r(x) = sum_e w_e V_e^T g_e(x),     K_r(x) = sum_e w_e V_e^T K_e(x) V_e.
+    f_r(x) = sum_p w_p G_p^T vec P_p,     K_r(x) = sum_p w_p G_p^T A_p G_p,
 
-Per quadrature point p of a sampled element the operator G_p = B_p V_e (9, r) is formed once,
-so f_r = sum_p w_p G_p^T vec P_p and K_r = sum_p w_p G_p^T A_p G_p are two BLAS products, and
+where the operator G_p = B_p V_e (9, r) of each sampled point is formed once: two BLAS
+products per update, and
 K_r is exactly the derivative of f_r (Newton converges quadratically). Cables, point loads
 and gravity are not hyper-reduced: they touch a handful of dofs, or are projected once.
 
@@ -69,8 +70,10 @@ class Reduction:
 
     element     : the element it was trained with ("p2", "p2-p0", "p1").
     basis       : (3n, r) orthonormal POD modes, zero on clamped dofs.
-    elements    : (s,) int64 sampled elements (ECSW).
-    weights     : (s,) > 0 their weights.
+    elements    : (s,) int64 the element of each sampled quadrature point (ECSW).
+    points      : (s,) int64 the point's index in its element's whole rule (main rule
+                  first, then a P2-P0 element's lambda points).
+    weights     : (s,) > 0 their weights (multiplying the points' own volumes).
     box         : the training box.
     fingerprint : {part: hash} of the mesh, element, supports, material and cables.
     young_modulus_mpa : E it was trained with (forces scale with E: any E reuses it).
@@ -80,6 +83,7 @@ class Reduction:
     element: str
     basis: np.ndarray
     elements: np.ndarray
+    points: np.ndarray
     weights: np.ndarray
     box: TrainingBox
     fingerprint: dict[str, str]
@@ -158,16 +162,18 @@ class ReducedCoordinates:
         self.full = full
         self.basis = np.ascontiguousarray(reduction.basis)
         self.rest = full.rest_nodes_mm
-        sampled = reduction.elements
+        sampled, points = reduction.elements, reduction.points
         self.tets = full.tets[sampled]
-        self.gradients = full.shape_gradients[sampled]  # (s, q, k, 3)
-        # quadrature weight of each point times its element's ECSW weight (s, q) mm^3
-        self.point_weights = full.quadrature_weights_mm3[sampled] * reduction.weights[:, None]
+        self.rule_points = points
+        # each sampled point as an element of one point: (s, 1, k, 3)
+        self.gradients = full.shape_gradients[sampled, points][:, None]
+        # the point's volume times its ECSW weight (s, 1) mm^3
+        self.point_weights = (full.law_weights_mm3[sampled, points] * reduction.weights)[:, None]
         local = self.basis[full.element_dofs[sampled]]  # (s, 3k, r)
-        operators = gradient_operators(self.gradients) @ local[:, None]  # (s, q, 9, r)
+        operators = gradient_operators(self.gradients) @ local[:, None]  # (s, 1, 9, r)
         r = self.basis.shape[1]
-        self.points = operators.reshape(-1, 9, r)  # (p, 9, r)
-        self.stacked = operators.reshape(-1, r)  # (9p, r)
+        self.points = operators.reshape(-1, 9, r)  # (s, 9, r)
+        self.stacked = operators.reshape(-1, r)  # (9s, r)
         # elements with clamped and free nodes: an element with every node clamped stays at
         # rest and exerts nothing
         clamped = np.isin(full.tets, full.fixed_nodes)
@@ -207,8 +213,10 @@ class ReducedCoordinates:
         return self.rest + (self.basis @ offset).reshape(-1, 3)
 
     def _stresses(self, positions_mm: np.ndarray, with_tangent: bool):
-        F = deformation_gradients(positions_mm, self.tets, self.gradients)
-        return self.full._constitutive(F, with_tangent)
+        """At the sampled points, (s, 1, ...) shaped: (densities, P) or (P, A)."""
+        F = deformation_gradients(positions_mm, self.tets, self.gradients)[:, 0]
+        pair = self.full.constitutive_at(F, self.rule_points, with_tangent)
+        return tuple(a[:, None] for a in pair)
 
     def _forces(self, stress: np.ndarray) -> np.ndarray:
         weighted = self.point_weights[..., None] * stress.reshape(*stress.shape[:2], 9)

@@ -1,6 +1,6 @@
 """The .rom.npz file: a trained reduction, with the fingerprint of the model it belongs to.
 
-Arrays: basis (3n, r), elements (s,), weights (s,), cable_min (a,), cable_max (a,),
+Arrays: basis (3n, r), elements (s,), points (s,), weights (s,), cable_min (a,), cable_max (a,),
 gravity_mm_s2 (3,); `meta`: a JSON string with format, element, fingerprint, controls,
 max_force_n, rms_error_mm, young_modulus_mpa and info (training figures).
 
@@ -24,7 +24,7 @@ from softforce_cli.fem.model import FEModel
 from softforce_cli.fem.reduction.reduced_model import ReducedModel, Reduction, TrainingBox
 from softforce_cli.io.atomic import atomic_path
 
-FORMAT = "softforce-rom-1"
+FORMAT = "softforce-rom-2"  # 2: sampled quadrature points, not whole elements
 
 
 def _digest(*parts: object) -> str:
@@ -62,7 +62,8 @@ def save_reduction(path: Path, reduction: Reduction, force: bool = False) -> Non
     }
     with atomic_path(Path(path), force=force) as temporary, open(temporary, "wb") as stream:
         np.savez(stream, basis=reduction.basis, elements=reduction.elements,
-                 weights=reduction.weights, cable_min=box.cable_min, cable_max=box.cable_max,
+                 points=reduction.points, weights=reduction.weights,
+                 cable_min=box.cable_min, cable_max=box.cable_max,
                  gravity_mm_s2=box.gravity_mm_s2, meta=np.array(json.dumps(meta)))
 
 
@@ -87,8 +88,9 @@ def load_reduction(path: Path) -> Reduction:
                       float(meta["max_force_n"]), arrays["gravity_mm_s2"],
                       float("nan") if rms is None else float(rms))
     return Reduction(meta["element"], arrays["basis"], arrays["elements"].astype(np.int64),
-                     arrays["weights"], box, dict(meta["fingerprint"]),
-                     float(meta["young_modulus_mpa"]), dict(meta["info"]))
+                     arrays["points"].astype(np.int64), arrays["weights"], box,
+                     dict(meta["fingerprint"]), float(meta["young_modulus_mpa"]),
+                     dict(meta["info"]))
 
 
 def reduced_model(full: FEModel, reduction: Reduction, source: Path | str = "reduced model"
