@@ -12,6 +12,11 @@ estimator is sample_data/diamond/diamond_p2.toml (the coarse P2 robot) with `[fe
 count` in FEATURE_COUNTS, sensing with `--tare 1 --updates 6` and the truth's camera pose
 (a pose-only calibration, no material calibration), scored by estimation.truth_errors.
 
+Variants: `--features 51 --noise 0 1` restrict the runs; `--tag NAME --set TABLE.KEY=VALUE`
+(repeatable) senses with other settings into folders and a results file ending in _NAME,
+leaving the default's results and the figure alone (docs/sensing.md, "Why the probes read
+high", compares force models this way).
+
 Writes, under out/study_sweep/ (recordings, robot variants, sense outputs, cached), the
 results to results.json, and the figure docs/figures/sensing_sweep.png, which
 docs/sensing.md ("Noise and feature-count sweep") quotes. Reruns reuse the recordings and
