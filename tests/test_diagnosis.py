@@ -6,13 +6,15 @@ import numpy as np
 import pytest
 
 from softforce_cli.calibration.rigid import RigidTransform
-from softforce_cli.diagnosis.fitting import Candidate, fit_values, held_out
+from softforce_cli.diagnosis.fitting import Candidate, HeldOut, fit_values, held_out
 from softforce_cli.diagnosis.hypotheses import Hypothesis, Inputs
 from softforce_cli.diagnosis.residuals import Field, point_residuals
 from softforce_cli.diagnosis.selection import (
     clear_improvement,
     effective_sample_size,
+    explained_mm,
     noise_floor_mm,
+    worth_refitting,
 )
 from softforce_cli.diagnosis.sensitivities import ColumnSet, column_set, state_columns
 from softforce_cli.diagnosis.states import group_states, trajectory_segments
@@ -153,3 +155,19 @@ def test_sensitivity_columns_match_re_solved_equilibria(diamond_state, column, e
     # the rigid give leaves out the clamp's own distortion: 5.5% of the 3 mm sink at 2 N/mm
     limit = 0.08 if column == "base_compliance" else 0.02
     assert np.linalg.norm(predicted - expected) < limit * np.linalg.norm(expected)
+
+
+def test_refit_admission_without_the_size_rule_still_asks_for_generalisation():
+    """A gain of 0.26 mm (explained) under a 0.36 mm floor with a third of the excess: not
+    worth refitting by rules 1 and 3, worth it by rule 1 alone (the fallback before
+    `unexplained`); a gain carried by one segment is refused either way."""
+    rng = np.random.default_rng(5)
+    before = 0.58**2 + rng.normal(0, 0.002, 8)
+    spread = HeldOut(0.58, 0.52, before, before - 0.58**2 + 0.52**2)
+    assert explained_mm(spread) == pytest.approx(np.sqrt(0.58**2 - 0.52**2), rel=1e-9)
+    assert not worth_refitting(spread, 0.36)
+    assert worth_refitting(spread, 0.36, size=False)
+    one = np.zeros(8)
+    one[3] = 8 * (0.58**2 - 0.52**2)
+    single = HeldOut(0.58, 0.52, before, before - one)
+    assert not worth_refitting(single, 0.36, size=False)
