@@ -6,10 +6,8 @@ Three kinds of snapshots, all in the full model:
   Halton points inside the box;
 - linear responses K^-1 H^T to unit forces along x, y, z at every feature point and to every
   cable, at a few of those equilibria: the columns the compliance W is made of;
-- loaded states: the equilibria under one or two contact forces pressing along the inward
-  normal at random feature points (up to max_force_n), solved nonlinearly from each static
-  one: a first-order step misses where the body goes under two contacts (the cables' tensions
-  change by a newton, the surface by 20 mm), and the basis only holds what it is shown.
+- loaded states: each equilibrium plus the first-order response to one or two contact forces
+  pressing along the inward normal at random feature points (up to max_force_n).
 """
 
 from __future__ import annotations
@@ -27,20 +25,12 @@ from softforce_cli.fem.attachment import Attachment
 from softforce_cli.fem.cables import CableInputs
 from softforce_cli.fem.compliance import linearize
 from softforce_cli.fem.model import FEModel
-from softforce_cli.fem.statics import (
-    Equilibrium,
-    PointLoads,
-    SolverSettings,
-    solve_equilibrium,
-)
+from softforce_cli.fem.statics import Equilibrium, SolverSettings, solve_equilibrium
 from softforce_cli.io.atomic import atomic_path
 
 # Contact forces in training reach this by default (N): the paper's heaviest weight, 1.06 N.
 MAX_FORCE_N = 1.0
 SEED = 20181016  # fixed: training is reproducible
-# Cached snapshots made by another version of `collect` are not reused (2: loaded states
-# solved nonlinearly).
-SNAPSHOT_VERSION = "snapshots-2"
 # A training solve that needs more Newton iterations than this is retried in smaller steps
 # (a converging one takes ~10 from rest); failing fast saves minutes on a quadratic mesh.
 ATTEMPT = SolverSettings(max_iterations=20)
@@ -57,7 +47,7 @@ class TrainingSet:
     response_rows  : (R0, 3n) the feature rows H (3 per feature) the responses were asked for
                      (cable rows follow them in `responses`, a per state).
     response_states: (t,) indices of the static snapshots where responses were taken.
-    loaded_mm      : (L, n, 3) equilibria under contact forces.
+    loaded_mm      : (L, n, 3) equilibria plus first-order contact responses.
     max_force_n    : the largest contact force used.
     """
 
@@ -136,9 +126,10 @@ def collect(model: FEModel, controls: tuple[str, ...], actuations: np.ndarray,
         for count in (1, 2):
             picks = rng.choice(len(feature_nodes), size=count, replace=False)
             magnitudes = rng.uniform(0.3, 1.0, count) * max_force_n / count
-            loaded.append(_loaded(model, CableInputs(controls, values), lin,
-                                  features.subset(picks),
-                                  -feature_normals[picks] * magnitudes[:, None], x))
+            rows = features.subset(picks).directional_rows(-feature_normals[picks],
+                                                           model.node_count)
+            moved = lin.responses(rows) @ magnitudes
+            loaded.append(x + moved.reshape(-1, 3))
         done += 1
         if progress is not None:
             progress(done, total)
@@ -147,22 +138,6 @@ def collect(model: FEModel, controls: tuple[str, ...], actuations: np.ndarray,
         tensions_n=np.array(tensions), responses=np.hstack(responses),
         response_states=states, loaded_mm=np.array(loaded), max_force_n=float(max_force_n),
     )
-
-
-def _loaded(model: FEModel, inputs: CableInputs, lin, points: Attachment,
-            forces_n: np.ndarray, start_mm: np.ndarray) -> np.ndarray:
-    """(n, 3) the equilibrium under contact forces (p, 3) at points, solved from the unloaded
-    one at the same actuation (`lin` its linearisation); with half the forces when Newton's
-    method fails there, and the first-order response when it fails with those too."""
-    for fraction in (1.0, 0.5):
-        loads = PointLoads(points, fraction * forces_n)
-        try:
-            return solve_equilibrium(model, inputs, loads, start_mm=start_mm,
-                                     settings=ATTEMPT).positions_mm
-        except SolverError:
-            continue
-    rows = points.directional_rows(forces_n, model.node_count)
-    return start_mm + (lin.responses(rows) @ np.ones(len(forces_n))).reshape(-1, 3)
 
 
 def _continued(model: FEModel, controls: tuple[str, ...], target: np.ndarray,
