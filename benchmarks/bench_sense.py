@@ -80,14 +80,20 @@ def _calibration(recording: Path) -> Path:
 
 
 def robot_with_element(element: str) -> Path:
-    """The sample robot file with `[mesh] element` set (p1 is the file as shipped)."""
+    """The sample robot file with `[mesh] element` set (p1 is the file as shipped); "p2-rom":
+    the p2 element through its reduced model (benchmarks/bench_reduced.py trains and caches
+    it, about 10 minutes on 2 free cores the first time)."""
     if element == "p1":
         return ROBOT
     path = OUT / f"diamond_{element}.toml"
-    text = ROBOT.read_text().replace(
-        'path = "diamond_coarse.vtu"',
-        f'path = "{ROBOT.parent / "diamond_coarse.vtu"}"\nelement = "{element}"')
-    path.write_text(text)
+    mesh = f'path = "{ROBOT.parent / "diamond_coarse.vtu"}"\nelement = "{element}"'
+    if element == "p2-rom":
+        from benchmarks.bench_reduced import reduced_robot
+
+        reduced = reduced_robot()[1].config.mesh.reduced
+        mesh = (f'path = "{ROBOT.parent / "diamond_coarse.vtu"}"\nelement = "p2"\n'
+                f'reduced = "{reduced}"')
+    path.write_text(ROBOT.read_text().replace('path = "diamond_coarse.vtu"', mesh))
     return path
 
 
@@ -123,6 +129,7 @@ def sense_run(robot: Path, overrides: dict | None = None) -> dict:
 CASES = (
     ("default settings", "p1", {}),
     ("default settings", "p2", {}),
+    ("default settings", "p2-rom", {}),
     ("voxel 1.8 mm, outlier 10 / contact 1 neighbours", "p1",
      {"vision.voxel_mm": 1.8, "vision.outlier_min_neighbours": 10,
       "vision.contact_min_neighbours": 1}),
@@ -141,7 +148,8 @@ def run() -> list[BenchRow]:
             return "-" if value is None else f"{100 * value:.0f}%"
 
         rows.append(BenchRow(
-            f"sense, whole pipeline 640x480, coarse {element} robot, 51 features, {label}",
+            f"sense, whole pipeline 640x480, coarse {element.replace('-rom', ' reduced')} "
+            f"robot, 51 features, {label}",
             result["median_ms"] * 1e-3, result["frames"] - 2, ">= 30 fps",
             f"{1e3 / result['median_ms']:.0f} fps",
             f"90th percentile frame {result['p90_ms']:.0f} ms; CPU time per frame (mean, "

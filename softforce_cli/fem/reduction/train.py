@@ -30,7 +30,6 @@ from softforce_cli.fem.reduction.rom_file import fingerprint
 from softforce_cli.fem.reduction.snapshots import (
     MAX_FORCE_N,
     SEED,
-    SNAPSHOT_VERSION,
     TrainingSet,
     actuation_design,
     collect,
@@ -54,6 +53,9 @@ class TrainingSettings:
                          snapshot of 4 cables; with 4 of them W_aa erred 19% instead of 13%).
     max_force_n        : largest contact force of the loaded states (N).
     validations        : untrained actuations the result is checked on (full solves).
+    sample_points      : ECSW down to single quadrature points (a second pass among the
+                         sampled elements' points: fewer evaluations per update); False keeps
+                         whole elements.
     box_fraction       : train over [min, min + fraction (max - min)] of each cable: the
                          robot file's max may fold the accurate (softer) model beyond what
                          the sensing uses (the coarse Diamond's p2 model with one cable at
@@ -70,6 +72,7 @@ class TrainingSettings:
     max_force_n: float = MAX_FORCE_N
     validations: int = 2
     box_fraction: float = 1.0
+    sample_points: bool = True
 
 
 def train(model: FEModel, controls: tuple[str, ...], low: np.ndarray, high: np.ndarray,
@@ -91,8 +94,7 @@ def train(model: FEModel, controls: tuple[str, ...], low: np.ndarray, high: np.n
         if progress is not None:
             progress(done, total)
 
-    key = "|".join([SNAPSHOT_VERSION, json.dumps(fingerprint(model), sort_keys=True),
-                    repr(controls),
+    key = "|".join([json.dumps(fingerprint(model), sort_keys=True), repr(controls),
                     np.round(actuations, 9).tobytes().hex(), repr(settings.max_force_n),
                     repr(settings.response_states), repr(np.asarray(feature_nodes).tolist())])
     data = None if cache is None else load_training_set(cache, key)
@@ -177,10 +179,15 @@ def sample(model: FEModel, basis: np.ndarray, data: TrainingSet, settings: Train
         return tangent_contributions(model, basis, x, directions)
 
     C, b, targets = ecsw_system(model, basis, data, settings.tangent_directions, whole)
-    first = sparse_nnls(C, b, POINT_TOLERANCE_FACTOR * settings.ecsw_tolerance,
-                        settings.max_elements)
+    factor = POINT_TOLERANCE_FACTOR if settings.sample_points else 1.0
+    first = sparse_nnls(C, b, factor * settings.ecsw_tolerance, settings.max_elements)
     del C
     candidates = first.elements
+    if not settings.sample_points:
+        per_element = model.shape_gradients.shape[1]
+        return (np.repeat(candidates, per_element), np.tile(np.arange(per_element),
+                len(candidates)), np.repeat(first.weights, per_element),
+                first.relative_residual)
     operators = point_operators(model, basis, candidates)
 
     def pointwise(x: np.ndarray, directions: np.ndarray | None) -> np.ndarray:
