@@ -110,6 +110,11 @@ def test_training_is_small_and_validated(beam):
     info = reduction.info
     assert 5 <= info["modes"] <= 120
     assert info["sampled_elements"] < len(robot.full_fe_model.tets)
+    # the point pass keeps single quadrature points, not every point of the kept elements
+    per_element = robot.full_fe_model.shape_gradients.shape[1]
+    assert info["sampled_points"] < 0.75 * per_element * info["sampled_elements"]
+    assert len(np.unique(np.c_[reduction.elements, reduction.points], axis=0)) == len(
+        reduction.points)
     assert info["ecsw_residual"] <= SETTINGS.ecsw_tolerance
     assert reduction.box.rms_error_mm < 0.5
     # clamped dofs stay clamped
