@@ -27,7 +27,7 @@ from softforce_cli.fem.reduction.reduced_model import ReducedModel, ReducedModel
 from softforce_cli.fem.reduction.rom_file import load_reduction, reduced_model, save_reduction
 from softforce_cli.fem.reduction.train import TrainingSettings, train_robot
 from softforce_cli.fem.statics import solve_equilibrium
-from softforce_cli.model.robot import load_robot
+from softforce_cli.model.robot import load_robot, with_element
 from softforce_cli.model.structured import box_mesh
 from tests.cli_runner import assert_one_line_error, softforce
 
@@ -270,3 +270,24 @@ def test_feature_responses_span_the_compliance_columns(beam):
         W.append(compliance(linearize(m, eq.positions_mm, eq.cable_tensions_n), rows,
                             rows[:3]).W_ef)
     assert np.linalg.norm(W[1] - W[0]) <= 0.02 * np.linalg.norm(W[0])
+
+
+@pytest.mark.parametrize("element", ["p2", "p2-p0"])
+def test_every_point_at_unit_weight_is_the_galerkin_projection(beam, element):
+    """With every quadrature point sampled at weight 1 (the main and, for P2-P0, the lambda
+    rule's points), the hyper-reduced forces and tangent are exactly V^T g(x) and V^T K V of
+    the full model's own assembly."""
+    robot, trained, _ = beam
+    full = with_element(robot, element).full_fe_model
+    m, q = full.shape_gradients.shape[:2]
+    everything = dataclasses.replace(trained, element=element,
+                                     elements=np.repeat(np.arange(m), q),
+                                     points=np.tile(np.arange(q), m), weights=np.ones(m * q))
+    space = ReducedModel(full, everything).coordinates
+    V = everything.basis
+    x = full.rest_nodes_mm + (V @ np.linspace(-0.3, 0.4, V.shape[1])).reshape(-1, 3)
+    forces, tangent = space.forces_and_tangent(x, np.zeros(len(full.cables)))
+    internal, stiffness = full.internal_forces_and_stiffness(x)
+    free = full.free_dofs
+    assert np.allclose(forces, V.T @ internal.ravel(), rtol=1e-9, atol=1e-9)
+    assert np.allclose(tangent, V[free].T @ (stiffness @ V[free]), rtol=1e-8, atol=1e-8)
