@@ -138,7 +138,8 @@ def run() -> list[BenchRow]:
     rows = [BenchRow("Reduced model training (p2, coarse Diamond)", info["total_s"], 1,
                      "< 10 min", f"{info['total_s'] / 60:.1f} min",
                      f"{info['static_snapshots']} static snapshots, {info['modes']} modes, "
-                     f"{info['sampled_elements']} of {info['elements']} elements sampled; "
+                     f"{info['sampled_points']} of {info['points']} quadrature points sampled "
+                     f"(in {info['sampled_elements']} elements); "
                      f"prepared in {time.perf_counter() - started:.0f} s here")]
     inputs = reduced.cable_inputs(ACTUATION)
     equilibrium = solve_equilibrium(model, inputs)
@@ -146,7 +147,7 @@ def run() -> list[BenchRow]:
     update_s = median_time(update, repeats=200, warmup=5)
     rows.append(BenchRow("Reduced FE update, p2 (tangent, factorise, W: 51 normals + 4 cables"
                          " + 2 forces)", update_s, 200, ">= 200 Hz", f"{1 / update_s:.0f} Hz",
-                         f"r = {info['modes']}, {info['sampled_elements']} elements; full p2:"
+                         f"r = {info['modes']}, {info['sampled_points']} points; full p2:"
                          " 1.4 Hz, full p1: 31 Hz (docs/locking.md)"))
     cold_s = median_time(lambda: solve_equilibrium(model, inputs), repeats=20)
     near = solve_equilibrium(model, reduced.cable_inputs(ACTUATION - [0.5, 0.0, 0.0, 0.0]))
@@ -199,12 +200,12 @@ def study() -> None:
                               full.rest_nodes_mm, full.mesh.surface_nodes)
                       for _, answer, case in references]
         except SolverError as error:  # too few modes or elements to hold a case
-            print(modes, tolerance, len(reduction.elements), error, flush=True)
+            print(modes, tolerance, len(reduction.points), error, flush=True)
             continue
         eq = solve_equilibrium(robot.fe_model, robot.cable_inputs(ACTUATION))
         update_s = median_time(update_callable(robot, eq.positions_mm,
                                                eq.cable_tensions_n), repeats=30)
-        row = (reduction.mode_count, tolerance, len(reduction.elements),
+        row = (reduction.mode_count, tolerance, len(reduction.points),
                max(e.rms_mm for e in errors),
                max(max(e.W_relative.values()) for e in errors), update_s)
         print(row, flush=True)
@@ -221,7 +222,7 @@ def study() -> None:
     axes[1].axhline(5.0, color="k", lw=0.8, ls="--")
     axes[0].set(xlabel="modes r", ylabel="worst RMS surface error (mm)")
     axes[1].set(xlabel="modes r", ylabel="worst W error |dW|/|W| (%)")
-    axes[2].set(xlabel="sampled elements", ylabel="update rate (Hz)")
+    axes[2].set(xlabel="sampled quadrature points", ylabel="update rate (Hz)")
     for axis in axes:
         axis.grid(alpha=0.3)
     axes[0].legend()
