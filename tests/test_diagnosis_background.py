@@ -32,6 +32,8 @@ def test_observed_table_is_its_height_over_the_footprint_above_the_robot_base():
     assert table.points_mm[:, 0].min() == -101.0 and table.points_mm[:, 1].max() == 101.0
     tilted = observed_table([_plane_at(-37.0, 0.01)], BODY)
     np.testing.assert_allclose(tilted.observed_mm, 0.01 * tilted.points_mm[:, 0], atol=1e-12)
+    # 1 mm, plus a tenth of the offset seen: a camera effect refitted on the robot alone
+    assert table.tolerance_mm == pytest.approx(1.05)
     assert observed_table([None], BODY) is None
     assert observed_table([_plane_at(-137.0)], BODY) is None  # a floor, not its table
 

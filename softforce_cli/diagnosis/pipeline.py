@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from softforce_cli.diagnosis.background import TABLE_TOLERANCE_MM, observed_table
+from softforce_cli.diagnosis.background import Table, observed_table
 from softforce_cli.diagnosis.basis import Basis, build_basis
 from softforce_cli.diagnosis.fitting import (
     Candidate,
@@ -185,7 +185,7 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
     exact = ExactModel(solutions, states, contexts, points, basis)
     result.stage = "refit"
     agreeing = [s for s in _best_per_effect(result.screened)
-                if _table_agrees(s.table_misfit_mm)]
+                if _table_agrees(s.table_misfit_mm, table)]
     best = [s for s in agreeing if worth_refitting(s.heldout, floor)][:REFIT_COUNT]
     relative_nominal = next(s.heldout.rms_before_mm for s in result.screened if s.relative)
     if not best and _structured(nominal.rms(), relative_nominal, floor):
@@ -228,10 +228,10 @@ def _structured(absolute_mm: float, relative_mm: float, floor: float) -> bool:
             or systematic_mm(absolute_mm, floor) > UNEXPLAINED_MM)
 
 
-def _table_agrees(misfit_mm: float | None) -> bool:
+def _table_agrees(misfit_mm: float | None, table: Table | None) -> bool:
     """Whether an explanation puts the table where the camera shows it (diagnosis.background):
     a physics effect cannot explain a moved table, nor a camera move an unmoved one."""
-    return misfit_mm is None or misfit_mm <= TABLE_TOLERANCE_MM
+    return misfit_mm is None or table is None or misfit_mm <= table.tolerance_mm
 
 
 def _first_order_ci(candidate: Candidate, inputs, nominal: Field, values: np.ndarray,
@@ -270,7 +270,8 @@ def _final(exact: ExactModel, screened: Screened, nominal: Field, segments: np.n
     ci = confidence_intervals(fitted.field, fitted.jacobian, fitted.values, n_eff, frames)
     table = fitted.candidate.table_misfit_mm(fitted.values, inputs)
     return Final(screened, fitted, result, ci,
-                 clear_improvement(result, floor, baseline) and _table_agrees(table), table)
+                 clear_improvement(result, floor, baseline)
+                 and _table_agrees(table, exact.basis.table), table)
 
 
 def _second(exact, result: Diagnosis, first: Final, inputs, nominal, segments, floor, n_eff,
@@ -292,7 +293,7 @@ def _second(exact, result: Diagnosis, first: Final, inputs, nominal, segments, f
                               _first_order_ci(pair, inputs, nominal, values, relative, n_eff,
                                               frames), pair.table_misfit_mm(values, inputs)))
     report("second effect", len(others), len(others))
-    pairs = [p for p in pairs if _table_agrees(p.table_misfit_mm)]
+    pairs = [p for p in pairs if _table_agrees(p.table_misfit_mm, exact.basis.table)]
     if not pairs or stop_requested():
         return None
     best = min(pairs, key=lambda s: s.heldout.rms_after_mm)
@@ -329,7 +330,8 @@ def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
         near += [s.candidate.label for s in _best_per_effect(result.screened)
                  if s.key != chosen.screened.key and s.candidate.label not in near
                  and s.candidate.hypotheses[0].name != chosen.candidate.hypotheses[0].name
-                 and clear_improvement(s.heldout, floor) and _table_agrees(s.table_misfit_mm)
+                 and clear_improvement(s.heldout, floor)
+                 and _table_agrees(s.table_misfit_mm, basis.table)
                  and indistinct(s.heldout, chosen.screened.heldout)]
         if near:
             result.groups.append([chosen.candidate.label, *near])
