@@ -91,3 +91,25 @@ def test_a_jump_in_the_sensed_load_is_not_taken_for_a_root(monkeypatch):
         np.array([0.5 * robot.material.young_modulus_mpa / 0.18]), 1.0))
     fit = material.fit_young_modulus(load_robot(SAMPLE_ROBOT), None, [], [], load, None)
     assert fit.young_modulus_mpa == pytest.approx(0.18 * 0.66 / 0.5, rel=5e-3)
+
+
+def test_a_small_step_at_the_root_is_reported_as_the_interval(monkeypatch):
+    """A sensed load proportional to E but 5% low below the root and 5% high above it (the
+    feature matches change there): the fit lands on the step and reports, as its interval,
+    the moduli the two sides ask for (E / 1.05 and E / 0.95 of the continuous root)."""
+    import numpy as np
+
+    from softforce_cli.calibration import material
+    from softforce_cli.model.robot import load_robot
+
+    root = 0.18 * 0.66 / 0.5
+
+    def sensed(robot, *_):
+        modulus = robot.material.young_modulus_mpa
+        return np.array([0.5 * modulus / 0.18 * (0.95 if modulus < root else 1.05)]), 1.0
+
+    monkeypatch.setattr(material, "_sensed", sensed)
+    load = material.KnownLoad(np.array([0.0, 0.0, 110.0]), np.array([0.0, 0.0, -0.66]))
+    fit = material.fit_young_modulus(load_robot(SAMPLE_ROBOT), None, [], [], load, None)
+    assert fit.young_modulus_mpa == pytest.approx(root, rel=1e-2)
+    assert fit.ci95_mpa == pytest.approx((root / 1.05, root / 0.95), rel=1e-2)
