@@ -36,7 +36,10 @@ def test_fit_makes_the_sensed_weight_the_known_one(fitted):
     assert 0.08 < material["young_modulus_mpa"] < 0.18
     assert material["nominal_estimate_n"] > 0.66
     assert material["estimates_n"][0] == pytest.approx(0.66, rel=0.03)
-    assert material["young_modulus_ci95_mpa"] is None  # one loaded frame: no interval
+    # one loaded frame: no spread, but the fit stops on a small step of the sensed load
+    # (the settled feature matches change with E) and reports the moduli its sides ask for
+    low, high = material["young_modulus_ci95_mpa"]
+    assert low <= material["young_modulus_mpa"] <= high and high - low < 0.2 * high
     assert material["element"] == "p1" and "tared" in material["method"]
 
 
