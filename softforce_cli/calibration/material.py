@@ -167,7 +167,8 @@ def fit_young_modulus(
     nominal_estimate = float(np.mean(evaluations[nominal][0]))
     passes = len(evaluations)
     # the frames' spread and a step the fit stopped on both make E uncertain: the union
-    intervals = [i for i in [_step_interval(evaluations, modulus, magnitude)] if i is not None]
+    step = _step_interval(evaluations, modulus, magnitude)
+    intervals = [] if step is None else [step]
     if len(estimates) > 1:
         spread = stats.t.ppf(0.975, len(estimates) - 1) * np.std(estimates, ddof=1) \
             / np.sqrt(len(estimates)) / np.mean(estimates)

@@ -61,11 +61,15 @@ def tangent_contributions(model: FEModel, basis: np.ndarray, positions_mm: np.nd
     return np.einsum("mar,mad->drm", local, moved).reshape(-1, len(model.tets))
 
 
-def point_operators(model: FEModel, basis: np.ndarray, elements: np.ndarray) -> np.ndarray:
-    """(s, q, 9, r) G = B V_e: vec(dF) at every quadrature point of elements (s,) per unit
-    reduced coordinate (q counts the whole rule, a P2-P0 element's lambda points included)."""
+def point_operators(model: FEModel, basis: np.ndarray, elements: np.ndarray,
+                    gradients: np.ndarray | None = None) -> np.ndarray:
+    """(s, q, 9, r) G = B V_e: vec(dF) per unit reduced coordinate at quadrature points of
+    elements (s,) with shape gradients (s, q, k, 3); by default every point of their whole
+    rule (a P2-P0 element's lambda points included)."""
+    if gradients is None:
+        gradients = model.shape_gradients[elements]
     local = basis[model.element_dofs[elements]]  # (s, 3k, r)
-    return gradient_operators(model.shape_gradients[elements]) @ local[:, None]
+    return gradient_operators(gradients) @ local[:, None]
 
 
 def _point_terms(model: FEModel, elements: np.ndarray, positions_mm: np.ndarray,
@@ -199,7 +203,6 @@ class _GramCholesky:
             self.size = s + 1
             return
         self.factor[s, :s] = below
-        self.factor[:s, s] = 0.0
         self.factor[s, s] = np.sqrt(pivot)
         self.size = s + 1
 

@@ -30,9 +30,10 @@ import scipy.sparse as sp
 
 from softforce_cli.fem.assembly import assemble_vector
 from softforce_cli.fem.cables import CableInputs
-from softforce_cli.fem.element import deformation_gradients, gradient_operators
+from softforce_cli.fem.element import deformation_gradients
 from softforce_cli.fem.model import FEModel
 from softforce_cli.fem.reduction.dense import DenseFactorization
+from softforce_cli.fem.reduction.ecsw import point_operators
 
 # An actuation beyond the training box by more than this fraction of the box's width warns.
 BOX_MARGIN = 0.1
@@ -169,8 +170,7 @@ class ReducedCoordinates:
         self.gradients = full.shape_gradients[sampled, points][:, None]
         # the point's volume times its ECSW weight (s, 1) mm^3
         self.point_weights = (full.law_weights_mm3[sampled, points] * reduction.weights)[:, None]
-        local = self.basis[full.element_dofs[sampled]]  # (s, 3k, r)
-        operators = gradient_operators(self.gradients) @ local[:, None]  # (s, 1, 9, r)
+        operators = point_operators(full, self.basis, sampled, self.gradients)  # (s, 1, 9, r)
         r = self.basis.shape[1]
         self.points = operators.reshape(-1, 9, r)  # (s, 9, r)
         self.stacked = operators.reshape(-1, r)  # (9s, r)

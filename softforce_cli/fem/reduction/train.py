@@ -203,7 +203,8 @@ def sample(model: FEModel, basis: np.ndarray, data: TrainingSet, settings: Train
 
 
 def ecsw_system(model: FEModel, basis: np.ndarray, data: TrainingSet, directions: int,
-                contributions, targets: list[np.ndarray] | None = None
+                contributions: Callable[[np.ndarray, np.ndarray | None], np.ndarray],
+                targets: list[np.ndarray] | None = None
                 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
     """C (rows, columns), b (rows,) of the ECSW fit, and the blocks' exact targets.
 
