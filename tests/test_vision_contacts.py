@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from softforce_cli.vision.contacts import detect_contacts, euclidean_clusters, nearest_features
 from softforce_cli.vision.point_cloud import PointCloud
@@ -10,12 +11,18 @@ from softforce_cli.vision.segmentation import Regions, Segmentation
 from softforce_cli.vision.settings import VisionSettings
 
 
-def _segmentation(robot_mm: np.ndarray, objects_mm: np.ndarray) -> Segmentation:
+def _segmentation(robot_mm: np.ndarray, *objects_mm: np.ndarray) -> Segmentation:
+    """The robot as colour region 0 and each object array as a region of its own, the
+    robot's points first (as segment_robot's regions index the cloud)."""
     def cloud(points):
         return PointCloud(points, np.zeros((len(points), 3), dtype=np.uint8))
 
-    empty = Regions(np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
-    return Segmentation(cloud(robot_mm), cloud(objects_mm), empty, np.zeros(0, dtype=bool))
+    parts = [robot_mm, *(o.reshape(-1, 3) for o in objects_mm)]
+    labels = np.repeat(np.arange(len(parts)), [len(p) for p in parts])
+    regions = Regions(labels, np.zeros((len(parts), 3)), np.array([len(p) for p in parts]))
+    objects = np.vstack(parts[1:]) if len(parts) > 1 else np.zeros((0, 3))
+    return Segmentation(cloud(robot_mm), cloud(objects), regions,
+                        np.arange(len(parts)) == 0)
 
 
 def _plane(half: float = 40.0, step: float = 1.0, z: float = 0.0) -> np.ndarray:
@@ -97,3 +104,153 @@ def test_contacts_in_the_clamped_box_are_ignored():
     assert len(detect_contacts(_segmentation(robot, blob), settings, clamp)) == 0
     lower = clamp - np.array([0, 0, 0, 0, 0, 6.0])  # up to z = -1: excludes nothing
     assert len(detect_contacts(_segmentation(robot, blob), settings, lower)) == 1
+
+
+# --- contacts whose tip the camera cannot see (occluded_tips) ---------------------------------
+
+CAMERA_MM = np.array([0.0, 0.0, 500.0])  # above the robot, looking down (-z)
+ROD_RADIUS_MM = 5.0
+
+
+def _rod_seen_from_camera(tip_mm: np.ndarray, axis: np.ndarray, hidden_mm: float,
+                          length_mm: float = 60.0, step_mm: float = 0.8) -> np.ndarray:
+    """The points a camera at CAMERA_MM sees of a rod of radius ROD_RADIUS_MM whose
+    hemispherical tip touches tip_mm, its axis running from the tip along `axis`: the
+    cylinder's half facing the camera, sampled evenly across the view (as pixels are), from
+    hidden_mm along the axis up to length_mm (the tip and the rod's first hidden_mm are out
+    of view, as under a tilted probe)."""
+    u = axis / np.linalg.norm(axis)
+    towards = CAMERA_MM - tip_mm
+    towards -= (towards @ u) * u
+    towards /= np.linalg.norm(towards)
+    s, x = np.meshgrid(np.arange(hidden_mm, length_mm, step_mm),
+                       np.arange(-ROD_RADIUS_MM + step_mm / 2, ROD_RADIUS_MM, step_mm))
+    s, x = s.ravel()[:, None], x.ravel()[:, None]
+    # the tip touches on the axis: the axis passes through tip_mm
+    return (tip_mm + s * u + x * np.cross(u, towards)
+            + np.sqrt(ROD_RADIUS_MM**2 - x**2) * towards)
+
+
+def _robot_seen_past_rod(robot_mm: np.ndarray, tip_mm: np.ndarray, axis: np.ndarray
+                         ) -> np.ndarray:
+    """The robot's points whose ray to CAMERA_MM does not pass through the rod (within its
+    radius of its axis, sampled every 0.5 mm): the surface under a tilted rod is hidden."""
+    u = axis / np.linalg.norm(axis)
+    centres = tip_mm + np.arange(0.0, 60.0, 0.5)[:, None] * u  # (m, 3)
+    rays = CAMERA_MM - robot_mm  # (n, 3)
+    lengths = np.linalg.norm(rays, axis=1)
+    rays /= lengths[:, None]
+    relative = centres[None] - robot_mm[:, None]  # (n, m, 3)
+    along = np.einsum("nmi,ni->nm", relative, rays)
+    across = np.linalg.norm(relative - along[..., None] * rays[:, None], axis=2)
+    return robot_mm[~np.any((across < ROD_RADIUS_MM) & (along > 0), axis=1)]
+
+
+ROD_AXIS = np.array([-np.sin(np.radians(38.0)), 0.0, np.cos(np.radians(38.0))])
+
+
+def _tilted_rod_scene(gap_mm: float, hidden_mm: float = 6.0, slab_normal=ROD_AXIS,
+                      noise_mm: float = 0.2):
+    """A robot slab's face through TIP (normal slab_normal, 1 mm grid) and a rod 38 degrees
+    from the vertical whose tip is gap_mm from TIP along its axis (0: touching at TIP), seen
+    from above. By default the rod pushes along the face's normal, as the sample's probes
+    do on the Diamond's sloping bars."""
+    rng = np.random.default_rng(4)
+    normal = np.asarray(slab_normal, dtype=float) / np.linalg.norm(slab_normal)
+    across = np.cross(normal, [0.0, 1.0, 0.0])
+    across /= np.linalg.norm(across)
+    grid = _plane(half=50.0)
+    slab = TIP + grid[:, :1] * across + grid[:, 1:2] * np.cross(normal, across)
+    rod = _rod_seen_from_camera(TIP + gap_mm * ROD_AXIS, ROD_AXIS, hidden_mm)
+    robot = _robot_seen_past_rod(slab, TIP, ROD_AXIS)
+    return (robot + rng.normal(0, noise_mm, robot.shape),
+            rod + rng.normal(0, noise_mm, rod.shape))
+
+
+TIP = np.array([5.0, 3.0, 0.0])
+
+
+def test_a_tilted_rod_hiding_its_tip_is_a_contact_at_the_tip():
+    robot, rod = _tilted_rod_scene(0.0)
+    segmentation = _segmentation(robot, rod)
+    # Algorithm 2 alone misses it: no rod point within r_search of the slab
+    off = detect_contacts(segmentation, VisionSettings(occluded_tip_mm=0), camera_mm=CAMERA_MM)
+    assert len(off) == 0
+    found = detect_contacts(segmentation, VisionSettings(), camera_mm=CAMERA_MM)
+    assert len(found) == 1 and found.occluded.tolist() == [True]
+    assert found.point_counts.tolist() == [0] and len(found.contact_points_mm) == 0
+    assert np.linalg.norm(found.centres_mm[0] - TIP) < 2.0
+    # without the camera's position the tip lies on the line through the seen side of the
+    # rod, about one radius off, towards the camera
+    seen_side = detect_contacts(segmentation, VisionSettings()).centres_mm
+    assert 3.0 < np.linalg.norm(seen_side[0] - TIP) < 6.5
+
+
+def test_a_rod_pressing_obliquely_is_found_a_few_mm_off():
+    # the same rod on a level face (38 degrees from its normal): the line through the rod's
+    # seen side meets the face further down the axis (8-10 mm beyond the rod's last seen
+    # point here, so the default 8 mm misses it), and at the depth where that line meets it,
+    # which is not where the axis does
+    robot, rod = _tilted_rod_scene(0.0, slab_normal=[0.0, 0.0, 1.0])
+    segmentation = _segmentation(robot, rod)
+    assert len(detect_contacts(segmentation, VisionSettings(), camera_mm=CAMERA_MM)) == 0
+    found = detect_contacts(segmentation, VisionSettings(occluded_tip_mm=10.0),
+                            camera_mm=CAMERA_MM)
+    assert len(found) == 1 and found.occluded.all()
+    assert 2.0 < np.linalg.norm(found.centres_mm[0] - TIP) < 5.0
+
+
+def test_a_rod_stopping_short_of_the_robot_is_no_contact():
+    # its extended axis meets the slab 15 mm beyond its tip (21 mm beyond its last seen point)
+    robot, rod = _tilted_rod_scene(15.0)
+    assert len(detect_contacts(_segmentation(robot, rod), VisionSettings(),
+                               camera_mm=CAMERA_MM)) == 0
+    # a gap of a few mm more than occluded_tip_mm already is not one
+    robot, rod = _tilted_rod_scene(0.0, hidden_mm=13.0)
+    assert len(detect_contacts(_segmentation(robot, rod), VisionSettings(),
+                               camera_mm=CAMERA_MM)) == 0
+
+
+def test_a_rod_touching_in_view_is_algorithm_2s_contact_only():
+    # the same rod seen down to its tip's side: Algorithm 2 finds it, and its axis is not
+    # extended into a second contact
+    robot, rod = _tilted_rod_scene(0.0, hidden_mm=0.0)
+    found = detect_contacts(_segmentation(robot, rod), VisionSettings(), camera_mm=CAMERA_MM)
+    assert len(found) == 1 and not found.occluded.any()
+    assert np.linalg.norm(found.centres_mm[0] - TIP) < 8.0
+
+
+def test_table_cable_and_marker_are_no_occluded_contact():
+    robot = _plane(half=30.0)
+    # the table around the robot's foot, 6 mm below its face (beyond r_search): flat, square
+    table = _plane(half=60.0, z=-6.0)
+    table = table[np.abs(table[:, :2]).max(axis=1) > 32.0]
+    # a cable lying along the robot 6 mm above it, ending over it: its axis runs parallel
+    x = np.arange(-80.0, 10.0, 0.5)
+    cable = np.column_stack([x, np.full_like(x, 5.0), np.full_like(x, 6.0)])
+    cable = np.vstack([cable + np.array([0.0, dy, 0.0]) for dy in (-0.5, 0.0, 0.5)])
+    # a round marker sticker 5 mm above the face: not elongated
+    marker = _hemisphere(np.array([-10.0, -10.0, 5.0]), 2.0, 60, np.random.default_rng(5))
+    for objects in (table, cable, marker):
+        found = detect_contacts(_segmentation(robot, objects), VisionSettings(),
+                                camera_mm=CAMERA_MM)
+        assert len(found) == 0
+    # the cable ending 3 mm above the robot along its own axis, pointing down at it, is one
+    down = np.column_stack([np.zeros(80), np.zeros(80), 3.0 + np.arange(80) * 0.5])
+    found = detect_contacts(_segmentation(robot, down), VisionSettings(
+        contact_min_neighbours=0, contact_radius_mm=2.5))
+    assert len(found) == 1 and found.occluded.all()
+    np.testing.assert_allclose(found.centres_mm[0], [0.0, 0.0, 0.0], atol=1.0)
+
+
+def test_occluded_tips_in_the_clamped_box_are_ignored():
+    robot, rod = _tilted_rod_scene(0.0)
+    clamp = np.array([-20.0, -20.0, -40.0, 20.0, 20.0, -2.0])  # grown by 5 mm: up to z = 3
+    assert len(detect_contacts(_segmentation(robot, rod), VisionSettings(), clamp,
+                               camera_mm=CAMERA_MM)) == 0
+
+
+def test_occluded_tip_setting_is_checked():
+    with pytest.raises(ValueError, match="occluded_tip_mm"):
+        VisionSettings(occluded_tip_mm=-1.0)
+    assert VisionSettings(occluded_tip_mm=0.0).occluded_tip_mm == 0.0

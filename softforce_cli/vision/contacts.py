@@ -19,15 +19,18 @@ class DetectedContacts:
     """Where objects touch the robot in one frame.
 
     centres_mm        : (c, 3) float64 mean of each contact cluster (robot frame), largest
-                        cluster first.
-    point_counts      : (c,) int64 contact points in each cluster.
+                        cluster first, then the occluded tips (occluded_tips).
+    point_counts      : (c,) int64 contact points in each cluster (0 for an occluded tip).
     contact_points_mm : (k, 3) float64 every object point found in contact (Algorithm 2's
                         contact points), clustered or not.
+    occluded          : (c,) bool, True where the contact is an elongated object's hidden tip
+                        (its axis extended to the robot), not Algorithm 2's contact points.
     """
 
     centres_mm: np.ndarray
     point_counts: np.ndarray
     contact_points_mm: np.ndarray
+    occluded: np.ndarray
 
     def __len__(self) -> int:
         return len(self.centres_mm)
@@ -58,22 +61,28 @@ def detect_contacts(
     segmentation: Segmentation,
     settings: VisionSettings = VisionSettings(),
     excluded_box_mm: np.ndarray | None = None,
+    camera_mm: np.ndarray | None = None,
 ) -> DetectedContacts:
     """Algorithm 2: object points with MORE than contact_min_neighbours robot points within
     contact_radius_mm are contact points; their Euclidean clusters (cluster_tolerance_mm, at
-    least cluster_min_points) are the contacts, located at the cluster means.
+    least cluster_min_points) are the contacts, located at the cluster means. Then the
+    occluded tips (occluded_tips, unless settings.occluded_tip_mm is 0): elongated objects
+    with no contact point whose axis, extended, meets the robot.
 
-    excluded_box_mm (6,), optional: the clamped region's box; contact points within
-    contact_exclusion_mm of it are ignored (a fixture holding the base is not a load).
+    excluded_box_mm (6,), optional: the clamped region's box; contact points and occluded
+    tips within contact_exclusion_mm of it are ignored (a fixture holding the base is not a
+    load). camera_mm (3,), optional: the camera's position (robot frame), which puts an
+    occluded tip on the object's axis rather than on its seen side (occluded_tips).
     """
     robot, objects = segmentation.robot.points_mm, segmentation.objects.points_mm
-    none = DetectedContacts(np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros((0, 3)))
     if len(robot) == 0 or len(objects) == 0:
-        return none
+        return DetectedContacts(np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros((0, 3)),
+                                np.zeros(0, dtype=bool))
     neighbours = segmentation.robot_tree.query_ball_point(
         objects, settings.contact_radius_mm, return_length=True
     )
-    contact = neighbours > settings.contact_min_neighbours
+    touching = neighbours > settings.contact_min_neighbours
+    contact = touching.copy()
     if excluded_box_mm is not None:
         grown = np.asarray(excluded_box_mm, dtype=float) + settings.contact_exclusion_mm * (
             np.array([-1, -1, -1, 1, 1, 1])
@@ -83,12 +92,24 @@ def detect_contacts(
     labels, sizes = euclidean_clusters(
         points, settings.cluster_tolerance_mm, settings.cluster_min_points
     )
-    if len(sizes) == 0:
-        return DetectedContacts(none.centres_mm, none.point_counts, points)
     kept = labels >= 0
     sums = np.stack([np.bincount(labels[kept], points[kept, a], len(sizes)) for a in range(3)],
                     axis=1)
-    return DetectedContacts(sums / sizes[:, None], sizes, points)
+    centres = sums / np.maximum(sizes, 1)[:, None]
+    tips = np.zeros((0, 3))
+    if settings.occluded_tip_mm > 0:
+        # an object touching anywhere, the clamped box included, is Algorithm 2's: its axis
+        # is not extended, so no object gives two contacts
+        tips = occluded_tips(objects, object_regions(segmentation), touching,
+                             segmentation.robot_tree, settings, camera_mm)
+        if excluded_box_mm is not None:
+            tips = tips[~inside_box(tips, grown)]
+    return DetectedContacts(
+        np.vstack([centres, tips]),
+        np.concatenate([sizes, np.zeros(len(tips), dtype=np.int64)]),
+        points,
+        np.repeat([False, True], [len(centres), len(tips)]),
+    )
 
 
 def nearest_features(centres_mm: np.ndarray, feature_positions_mm: np.ndarray) -> np.ndarray:
@@ -141,3 +162,101 @@ def object_axes(centres_mm: np.ndarray, object_points_mm: np.ndarray,
         axis = vectors[:, 2]
         axes[k] = axis if axis @ (centres[k] - mean) >= 0 else -axis
     return axes
+
+
+# Fewer object points than this show no axis (as in object_axes).
+AXIS_MIN_POINTS = 10
+
+
+def object_regions(segmentation: Segmentation) -> np.ndarray:
+    """(k,) int64 colour region of each object point (segmentation.objects' order): the
+    segmentation's connected objects, which occluded_tips takes as the objects."""
+    labels = segmentation.regions.labels
+    is_object = labels >= 0
+    is_object[is_object] = ~segmentation.robot_regions[labels[is_object]]
+    return labels[is_object]
+
+
+def occluded_tips(objects_mm: np.ndarray, object_labels: np.ndarray, touching: np.ndarray,
+                  robot_tree: cKDTree, settings: VisionSettings = VisionSettings(),
+                  camera_mm: np.ndarray | None = None) -> np.ndarray:
+    """Contacts whose tip the camera cannot see -> (t, 3) float64 meeting points, robot frame.
+
+    objects_mm (k, 3) the object points, object_labels (k,) int64 the object each belongs to
+    (>= 0: colour regions, object_regions), touching (k,) bool Algorithm 2's contact points
+    among them, robot_tree a KD-tree of the robot points. An object of at least
+    AXIS_MIN_POINTS points with no touching point and an axis (principal direction, spread
+    along it AXIS_ELONGATION times the spread across) is extended beyond its end nearer the
+    robot, by occluded_tip_mm. When MORE than contact_min_neighbours robot points lie within
+    contact_radius_mm of that extension (a cylinder around it), the object touches there: its
+    tip is the point of the axis at the mean axial position of those robot points (where the
+    axis meets the robot's surface).
+    """
+    objects = np.asarray(objects_mm, dtype=float).reshape(-1, 3)
+    labels = np.asarray(object_labels, dtype=np.int64)
+    if len(labels) != len(objects) or len(touching) != len(objects) or np.any(labels < 0):
+        raise ValueError("occluded_tips: one label >= 0 and one touching flag per object point")
+    count = int(labels.max(initial=-1)) + 1
+    sizes = np.bincount(labels, minlength=count)
+    candidate = (sizes >= AXIS_MIN_POINTS) & (np.bincount(labels[touching], minlength=count) == 0)
+    if not candidate.any() or robot_tree.n == 0:
+        return np.zeros((0, 3))
+    # every object's mean and covariance at once (bincount per component), then its axis
+    means = np.stack([np.bincount(labels, objects[:, a], count) for a in range(3)], axis=1)
+    means /= np.maximum(sizes, 1)[:, None]
+    offsets = objects - means[labels]
+    products = (offsets[:, :, None] * offsets[:, None, :]).reshape(-1, 9)
+    covariances = np.stack([np.bincount(labels, products[:, j], count) for j in range(9)],
+                           axis=1).reshape(count, 3, 3) / np.maximum(sizes, 1)[:, None, None]
+    values, vectors = np.linalg.eigh(covariances)  # ascending, per object
+    candidate &= values[:, 2] >= AXIS_ELONGATION * values[:, 1]
+    if not candidate.any():
+        return np.zeros((0, 3))
+    axes = vectors[:, :, 2]
+    along = np.einsum("ni,ni->n", offsets, axes[labels])
+    ends = np.stack([np.full(count, np.inf), np.full(count, -np.inf)], axis=1)
+    np.minimum.at(ends[:, 0], labels, along)
+    np.maximum.at(ends[:, 1], labels, along)
+    which = np.flatnonzero(candidate)
+    axes, means, ends = axes[which], means[which], ends[which]
+    # both ends of each object; the one nearer the robot is where it would touch
+    end_points = means[:, None, :] + ends[:, :, None] * axes[:, None, :]  # (m, 2, 3)
+    gaps, _ = robot_tree.query(end_points.reshape(-1, 3))
+    nearer = np.argmin(gaps.reshape(-1, 2), axis=1)
+    rows = np.arange(len(which))
+    starts = end_points[rows, nearer]
+    directions = axes * np.where(nearer == 1, 1.0, -1.0)[:, None]
+    # the line through the seen points meets the robot's surface seen beside the object (the
+    # surface right under a tilted rod's tip is hidden by the rod itself)
+    length, radius = settings.occluded_tip_mm, settings.contact_radius_mm
+    middles = starts + 0.5 * length * directions
+    near = robot_tree.query_ball_point(middles, np.hypot(0.5 * length, radius))
+    owner = np.repeat(rows, [len(n) for n in near])
+    if len(owner) == 0:
+        return np.zeros((0, 3))
+    robot = robot_tree.data[np.concatenate(near).astype(np.int64)]
+    relative = robot - starts[owner]
+    axial = np.einsum("ni,ni->n", relative, directions[owner])
+    across = np.linalg.norm(relative - axial[:, None] * directions[owner], axis=1)
+    inside = (axial >= 0) & (axial <= length) & (across < radius)
+    hits = np.bincount(owner[inside], minlength=len(rows))
+    met = hits > settings.contact_min_neighbours
+    depth = np.bincount(owner[inside], axial[inside], len(rows))[met] / hits[met]
+    tips = starts[met] + depth[:, None] * directions[met]
+    if camera_mm is None:
+        return tips
+    # the camera sees the half of a rod that faces it, so that line lies about one radius
+    # from the rod's axis, towards the camera (4.5-5 mm for the sample's 5 mm probes); the
+    # radius is the object's half-width across the view (its points spread evenly across)
+    objects_met = which[met]
+    towards = np.asarray(camera_mm, dtype=float) - tips
+    towards -= np.einsum("ni,ni->n", towards, axes[met])[:, None] * axes[met]
+    norms = np.linalg.norm(towards, axis=1, keepdims=True)
+    towards = np.divide(towards, norms, out=np.zeros_like(towards), where=norms > 0)
+    sideways = np.zeros((count, 3))
+    sideways[objects_met] = np.cross(axes[met], towards)
+    lateral = np.einsum("ni,ni->n", offsets, sideways[labels])
+    half_widths = np.sqrt(3.0 * np.bincount(labels, lateral**2, count) / np.maximum(sizes, 1))
+    depths = np.sqrt(np.maximum(half_widths[labels]**2 - lateral**2, 0.0))
+    shifts = np.bincount(labels, depths, count) / np.maximum(sizes, 1)
+    return tips - shifts[objects_met, None] * towards

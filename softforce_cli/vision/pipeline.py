@@ -2,9 +2,9 @@
 
 table plane (fitted on a sample of the crop) -> cloud (crop, PassThrough, and table removal
 while back-projecting) -> VoxelGrid -> RadiusOutlier -> colour segmentation -> contacts
-(Algorithm 2) -> feature matching (Algorithm 3), each stage timed. The table goes before the
-VoxelGrid, unlike the other filters' paper order: it is most of the points in the crop box,
-and every later stage costs less without it.
+(Algorithm 2, and the elongated objects whose tip is hidden) -> feature matching (Algorithm
+3), each stage timed. The table goes before the VoxelGrid, unlike the other filters' paper
+order: it is most of the points in the crop box, and every later stage costs less without it.
 """
 
 from __future__ import annotations
@@ -108,7 +108,8 @@ def process_frame(
     clock.lap("outliers")
     segmentation = segment_robot(cloud, robot_rgb, settings, pairs)
     clock.lap("segmentation")
-    contacts = detect_contacts(segmentation, settings, excluded_box_mm)
+    contacts = detect_contacts(segmentation, settings, excluded_box_mm,
+                               camera_mm=robot_from_camera.translation_mm)
     contact_features = nearest_features(contacts.centres_mm, feature_positions_mm)
     clock.lap("contacts")
     matches = match_features(feature_positions_mm, feature_normals,

@@ -68,6 +68,12 @@ class VisionSettings:
     contact_exclusion_mm   : 5.0, contact points within this of the clamped region's box
                              (given by the caller) are ignored: a clamp or fixture touching
                              the base exerts no force the model can explain.
+    occluded_tip_mm        : 8.0, an elongated object (a rod, a finger) none of whose points
+                             is a contact point touches the robot where its axis, extended
+                             by at most this beyond its end nearer the robot, passes within
+                             contact_radius_mm of MORE than contact_min_neighbours robot
+                             points (contacts.occluded_tips): a rod tilted from the view
+                             hides its own tip. 0 turns this off (Algorithm 2 alone).
 
     Feature matching (Algorithm 3):
     match_line_mm          : 4.0, d_m: a feature is hidden when no robot point lies within
@@ -120,6 +126,7 @@ class VisionSettings:
     cluster_tolerance_mm: float = 5.0
     cluster_min_points: int = 1
     contact_exclusion_mm: float = 5.0
+    occluded_tip_mm: float = 8.0
     match_line_mm: float = 4.0
     match_limit_mm: float = 20.0
     match_search_mm: float = 30.0
@@ -129,9 +136,12 @@ class VisionSettings:
     def __post_init__(self) -> None:
         for name, value in vars(self).items():
             may_be_zero = ("contact_min_neighbours", "outlier_min_neighbours", "scale_to_camera",
-                           "match_mean_mm")
+                           "match_mean_mm", "occluded_tip_mm")
             if name not in may_be_zero and not value > 0:
                 raise ValueError(f"vision setting {name} must be positive, got {value}")
+        if self.occluded_tip_mm < 0:
+            raise ValueError("vision setting occluded_tip_mm must be >= 0 (0 turns it off), "
+                             f"got {self.occluded_tip_mm}")
         if self.contact_min_neighbours < 0 or self.outlier_min_neighbours < 0:
             raise ValueError("vision settings contact_min_neighbours and outlier_min_neighbours "
                              "must be >= 0")
