@@ -18,7 +18,7 @@ from softforce_cli.fem.allocator import keep_freed_memory
 # Each module exposes run() -> list[BenchRow].
 MODULES = ["benchmarks.bench_fem", "benchmarks.bench_calibration", "benchmarks.bench_recording",
            "benchmarks.bench_memory", "benchmarks.bench_reduced", "benchmarks.bench_sense",
-           "benchmarks.bench_diagnose"]
+           "benchmarks.bench_diagnose", "benchmarks.bench_occluded"]
 
 
 def machine() -> str:
