@@ -20,10 +20,16 @@ from scipy.optimize import nnls
 from softforce_cli.calibration.linear_model import linear_model
 from softforce_cli.errors import ModelError
 from softforce_cli.fem.attachment import Attachment
+from softforce_cli.fem.element import deformation_gradients
+from softforce_cli.fem.materials import Material
 from softforce_cli.fem.reduction.accuracy import LoadCase, between_features, case_errors
 from softforce_cli.fem.reduction.ecsw import sparse_nnls
 from softforce_cli.fem.reduction.pod import pod_basis, projection_errors
-from softforce_cli.fem.reduction.reduced_model import ReducedModel, ReducedModelWarning
+from softforce_cli.fem.reduction.reduced_model import (
+    ReducedCoordinates,
+    ReducedModel,
+    ReducedModelWarning,
+)
 from softforce_cli.fem.reduction.rom_file import load_reduction, reduced_model, save_reduction
 from softforce_cli.fem.reduction.train import TrainingSettings, train_robot
 from softforce_cli.fem.statics import solve_equilibrium
@@ -283,11 +289,64 @@ def test_every_point_at_unit_weight_is_the_galerkin_projection(beam, element):
     everything = dataclasses.replace(trained, element=element,
                                      elements=np.repeat(np.arange(m), q),
                                      points=np.tile(np.arange(q), m), weights=np.ones(m * q))
-    space = ReducedModel(full, everything).coordinates
+    model = ReducedModel(full, everything)
     V = everything.basis
     x = full.rest_nodes_mm + (V @ np.linspace(-0.3, 0.4, V.shape[1])).reshape(-1, 3)
-    forces, tangent = space.forces_and_tangent(x, np.zeros(len(full.cables)))
     internal, stiffness = full.internal_forces_and_stiffness(x)
     free = full.free_dofs
-    assert np.allclose(forces, V.T @ internal.ravel(), rtol=1e-9, atol=1e-9)
-    assert np.allclose(tangent, V[free].T @ (stiffness @ V[free]), rtol=1e-8, atol=1e-8)
+    projected = V[free].T @ (stiffness @ V[free])
+    # the float64 tangent is exact; the default float32 one rounds its per-update products
+    for space, tolerance in ((ReducedCoordinates(model, np.float64), 1e-12),
+                             (model.coordinates, 1e-5)):
+        forces, tangent = space.forces_and_tangent(x, np.zeros(len(full.cables)))
+        assert np.allclose(forces, V.T @ internal.ravel(), rtol=1e-9, atol=1e-9)
+        assert np.linalg.norm(tangent - projected) <= tolerance * np.linalg.norm(projected)
+
+
+@pytest.mark.parametrize("law", ["corotational", "neo-hookean"])
+def test_law_tangent_factors_are_its_tangent(law):
+    """shift I + sum_j d_j z_j z_j^T is the law's tangent for every part of it, also for
+    compressed, sheared and inverted points (the corotational M^-1 of an inverted point is
+    indefinite and takes the eigendecomposition)."""
+    rng = np.random.default_rng(3)
+    F = np.eye(3) + 0.3 * rng.standard_normal((60, 3, 3))
+    F[:20] *= 0.6
+    F[20:23] = -F[20:23] if law == "corotational" else F[20:23]
+    material = Material(law, 0.18, 0.45)
+    for part in ("all", "mu", "lambda"):
+        stress, tangent = material.stress_and_tangent(F, part)
+        same_stress, factors = material.stress_and_tangent_factors(F, part)
+        tangent = tangent.reshape(-1, 9, 9)
+        assert np.array_equal(stress, same_stress, equal_nan=True)
+        # a Neo-Hookean point with det F <= 0 has NaN stress and tangent, and NaN factors
+        finite = np.isfinite(tangent).all(axis=(1, 2))
+        assert finite.sum() >= 50 and np.isnan(factors.dense()[~finite]).all()
+        error = np.abs(factors.dense() - tangent)[finite].max()
+        assert error <= 1e-13 * np.abs(tangent[finite]).max()
+        assert (np.linalg.eigvalsh(tangent[finite])[:, 0] < 0).any()  # indefinite ones too
+    if law == "corotational":
+        assert factors.rows.shape[1] == 4  # 2 mu I + rank 4
+
+
+@pytest.mark.parametrize("element", ["p2", "p2-p0"])
+@pytest.mark.parametrize("law", ["corotational", "neo-hookean"])
+def test_factored_reduced_tangent_is_the_plain_sum(beam, element, law):
+    """ReducedTangent's shift term plus signed syrk updates equal sum_p w_p G_p^T A_p G_p
+    term by term (float64 to 1e-10, float32 to 1e-5), in a squeezed state where most
+    corotational A_p are indefinite (both signs of the factored terms)."""
+    robot, reduction, _ = beam
+    full = with_element(robot, element).full_fe_model
+    full = dataclasses.replace(full, material=dataclasses.replace(full.material, law=law))
+    model = ReducedModel(full, dataclasses.replace(reduction, element=element))
+    # 25% shorter along the beam (clamped end at x = 0), with a bend
+    x = full.rest_nodes_mm * [0.75, 1.0, 1.0]
+    x[:, 2] += 1e-3 * full.rest_nodes_mm[:, 0] ** 2
+    for dtype, tolerance in ((np.float64, 1e-10), (np.float32, 1e-5)):
+        space = ReducedCoordinates(model, dtype)
+        F = deformation_gradients(x, space.tets, space.gradients)[:, 0]
+        tangents = full.constitutive_at(F, space.rule_points, with_tangent=True)[1]
+        weighted = space.point_weights[:, :, None] * tangents
+        plain = np.einsum("pir,pij,pjs->rs", space.points, weighted, space.points)
+        _, tangent = space.forces_and_tangent(x, np.zeros(len(full.cables)))
+        assert np.linalg.norm(tangent - plain) <= tolerance * np.linalg.norm(plain)
+    assert (np.linalg.eigvalsh(tangents)[:, 0] < 0).mean() > 0.3

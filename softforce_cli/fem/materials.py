@@ -86,6 +86,41 @@ class Material:
         _, stress, tangent = _LAWS[self.law](F, *self._lame_of(part), True)
         return stress, tangent.reshape(len(F), 3, 3, 3, 3)
 
+    def stress_and_tangent_factors(self, F: np.ndarray, part: str = "all"
+                                   ) -> tuple[np.ndarray, TangentFactors]:
+        """P (m, 3, 3) MPa and the tangent A as shift I + sum_j d_j z_j z_j^T
+        (TangentFactors) at F (m, 3, 3): the corotational law's has 4 terms past its shift
+        2 mu, the other laws' are A's 9 eigenpairs."""
+        lam, mu = self._lame_of(part)
+        if self.law == "corotational":
+            return _corotational_factors(F, lam, mu)
+        _, stress, tangent = _LAWS[self.law](F, lam, mu, True)
+        # an inverted Neo-Hookean point has a NaN tangent (the solver backtracks): keep NaN
+        finite = np.isfinite(tangent).all(axis=(1, 2))
+        values, vectors = np.full((len(F), 9), np.nan), np.full((len(F), 9, 9), np.nan)
+        values[finite], vectors[finite] = np.linalg.eigh(tangent[finite])
+        return stress, TangentFactors(np.zeros(len(F)), vectors.transpose(0, 2, 1), values)
+
+
+@dataclass(frozen=True)
+class TangentFactors:
+    """A tangent A (m, 9, 9) MPa = shift I + sum_j d_j z_j z_j^T, for sums of B^T A B that
+    exploit it (a rank-k update per point instead of a 9 x 9 product).
+
+    shift        : (m,) MPa.
+    rows         : z (m, k, 9).
+    coefficients : d (m, k) MPa, of either sign (A may be indefinite).
+    """
+
+    shift: np.ndarray
+    rows: np.ndarray
+    coefficients: np.ndarray
+
+    def dense(self) -> np.ndarray:
+        """A (m, 9, 9) MPa."""
+        inner = self.rows.transpose(0, 2, 1) @ (self.coefficients[:, :, None] * self.rows)
+        return self.shift[:, None, None] * IDENTITY9 + inner
+
 
 def _linear(F, lam, mu, with_tangent):
     """Small-strain elasticity: psi = lam/2 tr(e)^2 + mu e:e, e = sym(F) - I."""
@@ -166,17 +201,10 @@ def _corotational(F, lam, mu, with_tangent):
     dR_ij/dF_kl = R_ip eps_pjs M^-1_sr eps_rql R_kq, M = tr S I - S.
     """
     m = len(F)
-    R, S = polar_decomposition(F)
-    strain = S - EYE
-    trace = np.trace(strain, axis1=1, axis2=2)
-    energy = 0.5 * lam * trace**2 + mu * np.einsum("mij,mij->m", strain, strain)
-    stress = 2 * mu * (F - R) + lam * trace[:, None, None] * R
+    R, S, trace, energy, stress = _corotational_stress(F, lam, mu)
     if not with_tangent:
         return energy, stress, None
-    # M is singular only for degenerate stretches (two singular values summing to zero).
-    coupling = (trace + 3.0)[:, None, None] * EYE - S
-    coupling_inv = inverse_transpose(coupling)[0]  # symmetric, so transpose is harmless
-    left = (R @ LEVI_CIVITA.reshape(3, 9)).reshape(m, 9, 3)  # [(i, j), s]
+    coupling_inv, left = _rotation_terms(R, S, trace)
     eps_R = (R[:, :, _MIDDLE_INDEX] * _MIDDLE_SIGN).transpose(0, 2, 1, 3)  # eps_rql R_kq
     right = coupling_inv @ eps_R.reshape(m, 3, 9)
     rotation_derivative = left @ right  # (m, 9, 9): rows (i, j), columns (k, l)
@@ -187,6 +215,67 @@ def _corotational(F, lam, mu, with_tangent):
         + lam * flat_R[:, :, None] * flat_R[:, None, :]
     )
     return energy, stress, tangent
+
+
+def _corotational_stress(F, lam, mu):
+    """(R, S, tr(S - I), energy density, P) of the corotational law at F (m, 3, 3)."""
+    R, S = polar_decomposition(F)
+    strain = S - EYE
+    trace = np.trace(strain, axis1=1, axis2=2)
+    energy = 0.5 * lam * trace**2 + mu * np.einsum("mij,mij->m", strain, strain)
+    stress = 2 * mu * (F - R) + lam * trace[:, None, None] * R
+    return R, S, trace, energy, stress
+
+
+def _rotation_terms(R, S, trace):
+    """(M^-1 (m, 3, 3), L (m, 9, 3)) with dR_ij/dF_kl = L M^-1 L^T: M = tr S I - S and
+    L[(i, j), s] = R_ip eps_pjs (since eps_rql R_kq = L[(k, l), r], the derivative is
+    symmetric, of rank 3)."""
+    # M is singular only for degenerate stretches (two singular values summing to zero).
+    coupling = (trace + 3.0)[:, None, None] * EYE - S
+    coupling_inv = inverse_transpose(coupling)[0]  # symmetric, so transpose is harmless
+    left = (R @ LEVI_CIVITA.reshape(3, 9)).reshape(len(R), 9, 3)  # [(i, j), s]
+    return coupling_inv, left
+
+
+def _corotational_factors(F, lam, mu):
+    """(P (m, 3, 3), TangentFactors) of the corotational law: its tangent is
+    2 mu I + (lam tr - 2 mu) L M^-1 L^T + lam vec R vec R^T (_corotational's three terms),
+    and with M^-1 = U D U^T (U unit lower triangular) the factors are 2 mu, the columns of
+    L U with coefficients (lam tr - 2 mu) D, and vec R with lam."""
+    m = len(F)
+    R, S, trace, _, stress = _corotational_stress(F, lam, mu)
+    coupling_inv, left = _rotation_terms(R, S, trace)
+    unit, diagonal = _ldl3(coupling_inv)
+    rows = np.empty((m, 4, 9))
+    rows[:, :3] = (left @ unit).transpose(0, 2, 1)
+    rows[:, 3] = R.reshape(m, 9)
+    coefficients = np.empty((m, 4))
+    coefficients[:, :3] = (lam * trace - 2 * mu)[:, None] * diagonal
+    coefficients[:, 3] = lam
+    return stress, TangentFactors(np.full(m, 2 * mu), rows, coefficients)
+
+
+def _ldl3(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A = U diag(d) U^T for symmetric A (m, 3, 3): U (m, 3, 3) unit lower triangular and
+    d (m, 3), in closed form (Cholesky's recurrence without square roots, stable for positive
+    definite A); matrices that are not positive definite (M^-1 of inverted elements) take
+    their eigendecomposition instead, which is as exact."""
+    a = A.reshape(-1, 9).T
+    d0 = a[0]
+    l10, l20 = a[3] / d0, a[6] / d0
+    d1 = a[4] - l10 * l10 * d0
+    l21 = (a[7] - l20 * l10 * d0) / d1
+    d2 = a[8] - l20 * l20 * d0 - l21 * l21 * d1
+    unit = np.zeros_like(A)
+    unit[:, 0, 0] = unit[:, 1, 1] = unit[:, 2, 2] = 1.0
+    unit[:, 1, 0], unit[:, 2, 0], unit[:, 2, 1] = l10, l20, l21
+    diagonal = np.stack([d0, d1, d2], axis=1)
+    definite = np.all(diagonal > 0.0, axis=1)
+    if not definite.all():
+        values, vectors = np.linalg.eigh(A[~definite])
+        unit[~definite], diagonal[~definite] = vectors, values
+    return unit, diagonal
 
 
 def _neo_hookean(F, lam, mu, with_tangent):

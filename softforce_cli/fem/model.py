@@ -166,14 +166,22 @@ class FEModel:
         if self.element.lambda_points is None:
             first, second = law(F, "all")
             return (first, second.reshape(-1, 9, 9)) if with_tangent else (first, second)
-        lam = np.asarray(points) >= self.element.quadrature_count
         first = np.zeros((len(F), 3, 3) if with_tangent else len(F))
         second = np.zeros((len(F), 9, 9) if with_tangent else (len(F), 3, 3))
-        for mask, part in ((~lam, "mu"), (lam, "lambda")):
+        for mask, part in self.law_parts(points):
             if mask.any():
                 a, b = law(F[mask], part)
                 first[mask], second[mask] = a, b.reshape(second[mask].shape)
         return first, second
+
+    def law_parts(self, points: np.ndarray) -> list[tuple[np.ndarray, str]]:
+        """[(mask (p,), part)]: which terms of the law (materials.PARTS) quadrature points
+        `points` (p,) of the element's whole rule carry: all of it, or (P2-P0) its mu terms
+        at the main rule's points and its lambda terms at the lambda rule's."""
+        if self.element.lambda_points is None:
+            return [(np.ones(len(points), dtype=bool), "all")]
+        lam = np.asarray(points) >= self.element.quadrature_count
+        return [(~lam, "mu"), (lam, "lambda")]
 
     def energy_and_forces(self, positions_mm: np.ndarray) -> tuple[float, np.ndarray]:
         """Elastic energy (mJ) and internal forces g(x) (n, 3) N, sharing one stress pass."""

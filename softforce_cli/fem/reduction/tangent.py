@@ -1,0 +1,82 @@
+"""The hyper-reduced tangent K_r = sum_p w_p G_p^T A_p G_p, assembled from factored A_p.
+
+With A_p = a_p I + sum_j d_pj z_pj z_pj^T (materials.TangentFactors), the sum splits into
+
+    K_r = sum_p w_p a_p G_p^T G_p  +  H+^T H+  -  H-^T H-,
+    rows of H: h_pj = sqrt(w_p |d_pj|) G_p^T z_pj (r,), in H+ or H- by the sign of d_pj,
+
+where the first term only changes with the material (it is formed once and kept) and the
+others are two symmetric rank-k updates (BLAS syrk: half a GEMM's flops, and on these cores
+twice as fast as the GEMM of the plain sum, whose transposed operand OpenBLAS handles
+slowly) over k s rows instead of 9 s: the corotational law has k = 4. The rows and their
+products run in `dtype` (float32 by default: half the memory traffic and twice the flops of
+float64); the tangent only sets Newton's rate and the compliance W (relative error ~1e-7 on
+K_r, docs/reduced_model.md), while the forces, which set Newton's answer, stay float64
+(ReducedCoordinates).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from softforce_cli.fem.materials import TangentFactors
+
+# Precision of the per-update products (the constant shift term is always float64).
+TANGENT_DTYPE = np.float32
+
+
+class ReducedTangent:
+    """sum_p w_p G_p^T A_p G_p for fixed operators G (s, 9, r) and weights w (s,) mm^3.
+
+    The factors of A come in pieces over consecutive slices of the points (a P2-P0 model's
+    mu and lambda points, evaluated with different parts of the law).
+    """
+
+    def __init__(self, operators: np.ndarray, weights: np.ndarray,
+                 dtype: type = TANGENT_DTYPE) -> None:
+        self.operators = operators
+        self.weights = weights
+        self.dtype = dtype
+        self.low = np.ascontiguousarray(operators, dtype=dtype)  # (s, 9, r)
+        self._shift: np.ndarray | None = None
+        self._shift_term: np.ndarray | None = None
+
+    @property
+    def size(self) -> int:
+        return self.operators.shape[-1]
+
+    def shift_term(self, shift: np.ndarray) -> np.ndarray:
+        """(r, r) sum_p w_p a_p G_p^T G_p in float64 for shifts a (s,) MPa, formed again only
+        when the shifts change (they are material constants)."""
+        if self._shift is None or not np.array_equal(shift, self._shift):
+            scaled = (self.weights * shift)[:, None, None] * self.operators
+            r = self.size
+            self._shift_term = self.operators.reshape(-1, r).T @ scaled.reshape(-1, r)
+            self._shift = shift.copy()
+        return self._shift_term
+
+    def __call__(self, pieces: list[tuple[slice, TangentFactors]]) -> np.ndarray:
+        """(r, r) N/mm, symmetric: the reduced tangent for the factors of A over each slice
+        of the points (together covering all s of them, in order)."""
+        r = self.size
+        shift = np.concatenate([factors.shift for _, factors in pieces])
+        total = self.shift_term(shift).copy()
+        for where, factors in pieces:
+            scale = np.sqrt(self.weights[where, None] * np.abs(factors.coefficients))
+            rows = (scale[:, :, None] * factors.rows).astype(self.dtype)
+            H = (rows @ self.low[where]).reshape(-1, r)  # (k s, r)
+            negative = (factors.coefficients < 0.0).ravel()
+            positive, negative = H[~negative], H[negative]
+            # numpy computes a.T @ a of one C-ordered array with syrk
+            total += positive.T @ positive
+            total -= negative.T @ negative
+        return 0.5 * (total + total.T)
+
+
+def plain_tangent(operators: np.ndarray, weights: np.ndarray, tangents: np.ndarray
+                  ) -> np.ndarray:
+    """(r, r) sum_p w_p G_p^T A_p G_p, term by term: the reference ReducedTangent is
+    checked and timed against. operators G (s, 9, r), weights (s,), tangents A (s, 9, 9)."""
+    r = operators.shape[-1]
+    weighted = (weights[:, None, None] * tangents) @ operators
+    return operators.reshape(-1, r).T @ weighted.reshape(-1, r)
