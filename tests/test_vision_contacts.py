@@ -267,7 +267,7 @@ def test_occluded_tip_setting_is_checked():
 def test_the_sample_west_probe_hiding_its_tip_is_found(sample_robot):
     """probes.mcap (424x240, D415 noise), frame 3: the west probe's rod, 38 degrees from the
     vertical, hides its tip from the overhead camera and no probe point comes within r_search
-    of the robot; its extended axis finds it (1.7 mm from the truth's contact point)."""
+    of the robot; its extended axis finds it (2.3 mm from the truth's contact point)."""
     recording = Path(__file__).resolve().parents[1] / "sample_data" / "recordings" / "probes.mcap"
     truth = json.loads(recording.with_name("probes.truth.json").read_text())
     pose = RigidTransform(np.array(truth["camera"]["rotation"]),
