@@ -133,6 +133,8 @@ AXIS_RADIUS_MM = 40.0
 # across (the ratio of the covariance's two largest eigenvalues): a rod seen over 40 mm
 # gives about 20, a ball or a palm about 1.
 AXIS_ELONGATION = 4.0
+# Fewer object points than this show no axis.
+AXIS_MIN_POINTS = 10
 
 
 def object_axes(centres_mm: np.ndarray, object_points_mm: np.ndarray,
@@ -141,7 +143,7 @@ def object_axes(centres_mm: np.ndarray, object_points_mm: np.ndarray,
     """The axis of the object touching at each contact: the principal direction of the
     object points within radius_mm of the centre, pointing from them towards the centre
     (the way an elongated object pushes) -> (c, 3) unit vectors, NaN where the points show
-    no axis (fewer than 10, or not elongation times longer than wide).
+    no axis (fewer than AXIS_MIN_POINTS, or not elongation times longer than wide).
 
     centres_mm (c, 3), object_points_mm (k, 3), robot frame.
     """
@@ -152,7 +154,7 @@ def object_axes(centres_mm: np.ndarray, object_points_mm: np.ndarray,
         return axes
     near = cKDTree(objects).query_ball_point(centres, radius_mm)
     for k, indices in enumerate(near):
-        if len(indices) < 10:
+        if len(indices) < AXIS_MIN_POINTS:
             continue
         points = objects[indices]
         mean = points.mean(axis=0)
@@ -163,9 +165,6 @@ def object_axes(centres_mm: np.ndarray, object_points_mm: np.ndarray,
         axes[k] = axis if axis @ (centres[k] - mean) >= 0 else -axis
     return axes
 
-
-# Fewer object points than this show no axis (as in object_axes).
-AXIS_MIN_POINTS = 10
 
 
 def object_regions(segmentation: Segmentation) -> np.ndarray:
