@@ -6,10 +6,12 @@ static solves; calibration from 9 markers; and the accuracy against the full P2 
 untrained load cases. The reduced model is trained once and cached in out/bench_reduced/
 (delete it to retrain); alone, this script prints the rows and writes the accuracy plot:
 
-    .venv/bin/python benchmarks/bench_reduced.py [--study]
+    .venv/bin/python benchmarks/bench_reduced.py [--study] [--tangent]
 
 --study also sweeps the basis size and the ECSW tolerance on the cached snapshots and writes
-docs/figures/reduced_model_accuracy.png (minutes).
+docs/figures/reduced_model_accuracy.png (minutes). --tangent times the ways of forming the
+reduced tangent against each other in this process, interleaved (medians), and the float32
+tangent's effect on W (docs/reduced_model.md, "speed").
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import dataclasses
 import pickle
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -36,13 +39,16 @@ from softforce_cli.fem.compliance import (  # noqa: E402
     force_rows,
     linearize,
 )
+from softforce_cli.fem.element import deformation_gradients  # noqa: E402
 from softforce_cli.fem.reduction.accuracy import (  # noqa: E402
     LoadCase,
     between_features,
     compare,
     respond,
 )
+from softforce_cli.fem.reduction.reduced_model import ReducedCoordinates  # noqa: E402
 from softforce_cli.fem.reduction.rom_file import save_reduction  # noqa: E402
+from softforce_cli.fem.reduction.tangent import plain_tangent  # noqa: E402
 from softforce_cli.fem.reduction.train import TrainingSettings, train_robot  # noqa: E402
 from softforce_cli.fem.statics import solve_equilibrium  # noqa: E402
 from softforce_cli.model.robot import Robot, load_robot, with_element  # noqa: E402
@@ -174,6 +180,75 @@ def run() -> list[BenchRow]:
     return rows
 
 
+def interleaved_medians(functions: dict[str, Callable[[], object]], repeats: int
+                        ) -> dict[str, float]:
+    """{name: median seconds} of each function, run in turn `repeats` times after one warm-up
+    round: on a shared machine the load changes within seconds, so timings taken one after
+    the other are not comparable, timings taken in turn are."""
+    times: dict[str, list[float]] = {name: [] for name in functions}
+    for round_ in range(repeats + 1):
+        for name, function in functions.items():
+            start = time.perf_counter()
+            function()
+            if round_:
+                times[name].append(time.perf_counter() - start)
+    return {name: float(np.median(values)) for name, values in times.items()}
+
+
+def tangent_study(repeats: int = 40) -> None:
+    """The reduced tangent formed four ways at the bench state, interleaved; and the W of the
+    default (float32) tangent against the float64 one on the untrained cases' states."""
+    full, reduced = reduced_robot()
+    model = reduced.fe_model
+    equilibrium = solve_equilibrium(model, reduced.cable_inputs(ACTUATION))
+    x, tensions = equilibrium.positions_mm, equilibrium.cable_tensions_n
+    precise = dataclasses.replace(model, tangent_dtype=np.float64)
+    fast, exact = model.coordinates, precise.coordinates
+    operators, weights = fast.points, fast.point_weights[:, 0]
+    r = operators.shape[-1]
+    # the operator as the plain sum stored it before: C-ordered (9s, r), so that the GEMM
+    # took it transposed
+    stacked = np.ascontiguousarray(operators.reshape(-1, r))
+    F = deformation_gradients(x, fast.tets, fast.gradients)[:, 0]
+
+    def law() -> np.ndarray:
+        return model.full.constitutive_at(F, fast.rule_points, with_tangent=True)[1]
+
+    def plain_before() -> np.ndarray:
+        weighted = (weights[:, None, None] * law()) @ operators
+        return stacked.T @ weighted.reshape(-1, r)
+
+    def factored(space: ReducedCoordinates) -> Callable[[], np.ndarray]:
+        pieces = [(where, model.full.material.stress_and_tangent_factors(F[where], part)[1])
+                  for where, part in space.parts]
+        return lambda: space.tangent(pieces)
+
+    timings = interleaved_medians({
+        "plain sum, float64, (9s, r) operator transposed (before)": plain_before,
+        "plain sum, float64, (r, 9s) operator": lambda: plain_tangent(operators, weights,
+                                                                      law()),
+        "factored law + syrk, float64": factored(exact),
+        "factored law + syrk, float32 (default)": factored(fast),
+        "forces and tangent, float64": lambda: exact.forces_and_tangent(x, tensions),
+        "forces and tangent, float32 (default)": lambda: fast.forces_and_tangent(x, tensions),
+        "update (bench row)": update_callable(reduced, x, tensions),
+    }, repeats)
+    for name, seconds in timings.items():
+        print(f"{name:58s} {seconds * 1e3:7.2f} ms")
+    reference = plain_tangent(operators, weights, law())
+    for name, space in (("float64", exact), ("float32", fast)):
+        tangent = space.forces_and_tangent(x, np.zeros_like(tensions))[1]
+        error = np.linalg.norm(tangent - reference) / np.linalg.norm(reference)
+        print(f"K_r {name} vs the plain sum: {error:.1e} relative (Frobenius)")
+    for name, case in cases(full, model.reduction.box.max_force_n):
+        answers = [respond(m, case, full.feature_nodes, full.feature_normals)
+                   for m in (precise, model)]
+        errors = compare(*answers, full.rest_nodes_mm, full.mesh.surface_nodes)
+        print(f"{name}: float32 vs float64 tangent: positions {errors.max_mm:.1e} mm apart, "
+              f"W {max(errors.W_relative.values()):.1e} relative, tensions "
+              f"{errors.tension_n:.1e} N")
+
+
 def study() -> None:
     """Accuracy and update time vs basis size and ECSW tolerance, on the cached snapshots."""
     import matplotlib
@@ -236,5 +311,8 @@ def study() -> None:
 if __name__ == "__main__":
     if "--study" in sys.argv:
         study()
+    if "--tangent" in sys.argv:
+        tangent_study()
+        sys.exit()
     for bench_row in run():
         print(bench_row)

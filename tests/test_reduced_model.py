@@ -25,11 +25,7 @@ from softforce_cli.fem.materials import Material
 from softforce_cli.fem.reduction.accuracy import LoadCase, between_features, case_errors
 from softforce_cli.fem.reduction.ecsw import sparse_nnls
 from softforce_cli.fem.reduction.pod import pod_basis, projection_errors
-from softforce_cli.fem.reduction.reduced_model import (
-    ReducedCoordinates,
-    ReducedModel,
-    ReducedModelWarning,
-)
+from softforce_cli.fem.reduction.reduced_model import ReducedModel, ReducedModelWarning
 from softforce_cli.fem.reduction.rom_file import load_reduction, reduced_model, save_reduction
 from softforce_cli.fem.reduction.train import TrainingSettings, train_robot
 from softforce_cli.fem.statics import solve_equilibrium
@@ -296,7 +292,7 @@ def test_every_point_at_unit_weight_is_the_galerkin_projection(beam, element):
     free = full.free_dofs
     projected = V[free].T @ (stiffness @ V[free])
     # the float64 tangent is exact; the default float32 one rounds its per-update products
-    for space, tolerance in ((ReducedCoordinates(model, np.float64), 1e-12),
+    for space, tolerance in ((ReducedModel(full, everything, np.float64).coordinates, 1e-12),
                              (model.coordinates, 1e-5)):
         forces, tangent = space.forces_and_tangent(x, np.zeros(len(full.cables)))
         assert np.allclose(forces, V.T @ internal.ravel(), rtol=1e-9, atol=1e-9)
@@ -337,12 +333,12 @@ def test_factored_reduced_tangent_is_the_plain_sum(beam, element, law):
     robot, reduction, _ = beam
     full = with_element(robot, element).full_fe_model
     full = dataclasses.replace(full, material=dataclasses.replace(full.material, law=law))
-    model = ReducedModel(full, dataclasses.replace(reduction, element=element))
+    reduction = dataclasses.replace(reduction, element=element)
     # 25% shorter along the beam (clamped end at x = 0), with a bend
     x = full.rest_nodes_mm * [0.75, 1.0, 1.0]
     x[:, 2] += 1e-3 * full.rest_nodes_mm[:, 0] ** 2
     for dtype, tolerance in ((np.float64, 1e-10), (np.float32, 1e-5)):
-        space = ReducedCoordinates(model, dtype)
+        space = ReducedModel(full, reduction, dtype).coordinates
         F = deformation_gradients(x, space.tets, space.gradients)[:, 0]
         tangents = full.constitutive_at(F, space.rule_points, with_tangent=True)[1]
         weighted = space.point_weights[:, :, None] * tangents

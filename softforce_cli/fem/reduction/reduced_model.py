@@ -100,14 +100,17 @@ class Reduction:
 @dataclass(frozen=True)
 class ReducedModel:
     """A full FEModel and a Reduction of it; reads as the full model except for its
-    `coordinates`, through which static solves and linearisations run reduced."""
+    `coordinates`, through which static solves and linearisations run reduced.
+    tangent_dtype is the precision of the reduced tangent's per-update products
+    (fem.reduction.tangent; np.float64 makes it exact to round-off)."""
 
     full: FEModel
     reduction: Reduction
+    tangent_dtype: type = TANGENT_DTYPE
 
     def __getattr__(self, name: str) -> Any:
         # every attribute that is not reduced (nodes, cables, gravity, ...) is the full model's
-        if name.startswith("__") or name in ("full", "reduction"):
+        if name.startswith("__") or name in ("full", "reduction", "tangent_dtype"):
             raise AttributeError(name)
         return getattr(self.full, name)
 
@@ -158,7 +161,7 @@ class ReducedModel:
 class ReducedCoordinates:
     """fem.coordinates protocol for x = x_rest + V q with hyper-reduced element sums."""
 
-    def __init__(self, model: ReducedModel, tangent_dtype: type = TANGENT_DTYPE) -> None:
+    def __init__(self, model: ReducedModel) -> None:
         full, reduction = model.full, model.reduction
         self.model = model
         self.full = full
@@ -185,7 +188,10 @@ class ReducedCoordinates:
         # transposed one on these cores
         self.stacked_t = np.ascontiguousarray(operators.reshape(-1, r).T)
         self.points = self.stacked_t.T.reshape(-1, 9, r)  # (s, 9, r), a view
-        self.tangent = ReducedTangent(self.points, self.point_weights[:, 0], tangent_dtype)
+        self.tangent = ReducedTangent(self.points, self.point_weights[:, 0],
+                                      model.tangent_dtype)
+        # V's rows at each cable's dofs, for its geometric stiffness
+        self.cable_bases = [self.basis[cable.dofs] for cable in full.cables]
         # elements with clamped and free nodes: an element with every node clamped stays at
         # rest and exerts nothing
         clamped = np.isin(full.tets, full.fixed_nodes)
@@ -246,9 +252,9 @@ class ReducedCoordinates:
             stress[where], factors = self.full.material.stress_and_tangent_factors(F[where], part)
             pieces.append((where, factors))
         tangent_r = self.tangent(pieces)
-        for cable, tension in zip(self.full.cables, tensions_n, strict=True):
+        for cable, local, tension in zip(self.full.cables, self.cable_bases, tensions_n,
+                                         strict=True):
             if tension != 0.0:
-                local = self.basis[cable.dofs]
                 tangent_r += local.T @ cable.geometric_stiffness(positions_mm, tension) @ local
         return self._forces(stress), tangent_r
 

@@ -66,7 +66,8 @@ class ReducedTangent:
             rows = (scale[:, :, None] * factors.rows).astype(self.dtype)
             H = (rows @ self.low[where]).reshape(-1, r)  # (k s, r)
             negative = (factors.coefficients < 0.0).ravel()
-            positive, negative = H[~negative], H[negative]
+            # np.compress copies rows twice as fast as boolean indexing
+            positive, negative = np.compress(~negative, H, axis=0), np.compress(negative, H, axis=0)
             # numpy computes a.T @ a of one C-ordered array with syrk
             total += positive.T @ positive
             total -= negative.T @ negative
