@@ -8,10 +8,12 @@ sampled here down to single quadrature points p with weights w_p >= 0:
 
     f_r(x) = sum_p w_p G_p^T vec P_p,     K_r(x) = sum_p w_p G_p^T A_p G_p,
 
-where the operator G_p = B_p V_e (9, r) of each sampled point is formed once: two BLAS
-products per update, and
-K_r is exactly the derivative of f_r (Newton converges quadratically). Cables, point loads
-and gravity are not hyper-reduced: they touch a handful of dofs, or are projected once.
+where the operator G_p = B_p V_e (9, r) of each sampled point is formed once, and K_r is
+the derivative of f_r (Newton converges quadratically). The forces are one GEMV; the tangent
+is assembled from the law's factored A_p (fem.reduction.tangent: the corotational A_p is
+2 mu I plus rank 4, so a kept shift term plus symmetric rank-k updates over 4 rows per point,
+in float32). Cables, point loads and gravity are not hyper-reduced: they touch a handful of
+dofs, or are projected once.
 
 The model keeps the full model's interface (node_count, rest_nodes_mm, cables,
 cable_jacobian, ... are the full model's), and its `coordinates` make fem.statics and
