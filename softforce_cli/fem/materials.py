@@ -258,9 +258,13 @@ def _corotational_factors(F, lam, mu):
 
 def _ldl3(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A = U diag(d) U^T for symmetric A (m, 3, 3): U (m, 3, 3) unit lower triangular and
-    d (m, 3), in closed form (Cholesky's recurrence without square roots, stable for positive
-    definite A); matrices that are not positive definite (M^-1 of inverted elements) take
-    their eigendecomposition instead, which is as exact."""
+    d (m, 3), in closed form (Cholesky's recurrence without square roots).
+
+    Used on M^-1, which is positive definite wherever it is finite (M's eigenvalues are sums
+    of two of S's, and the polar decomposition negates only the smallest singular value of
+    an inverted element), where this recurrence is as stable as Cholesky's; a singular M
+    gives non-finite factors, as it gives a non-finite dense tangent.
+    """
     a = A.reshape(-1, 9).T
     d0 = a[0]
     l10, l20 = a[3] / d0, a[6] / d0
@@ -270,12 +274,7 @@ def _ldl3(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     unit = np.zeros_like(A)
     unit[:, 0, 0] = unit[:, 1, 1] = unit[:, 2, 2] = 1.0
     unit[:, 1, 0], unit[:, 2, 0], unit[:, 2, 1] = l10, l20, l21
-    diagonal = np.stack([d0, d1, d2], axis=1)
-    definite = np.all(diagonal > 0.0, axis=1)
-    if not definite.all():
-        values, vectors = np.linalg.eigh(A[~definite])
-        unit[~definite], diagonal[~definite] = vectors, values
-    return unit, diagonal
+    return unit, np.stack([d0, d1, d2], axis=1)
 
 
 def _neo_hookean(F, lam, mu, with_tangent):
