@@ -32,7 +32,7 @@ import scipy.sparse as sp
 
 from softforce_cli.fem.assembly import assemble_vector
 from softforce_cli.fem.cables import CableInputs
-from softforce_cli.fem.element import deformation_gradients
+from softforce_cli.fem.element import gradient_operators
 from softforce_cli.fem.model import FEModel
 from softforce_cli.fem.reduction.dense import DenseFactorization
 from softforce_cli.fem.reduction.ecsw import point_operators
@@ -192,6 +192,14 @@ class ReducedCoordinates:
         self.points = self.stacked_t.T.reshape(-1, 9, r)  # (s, 9, r), a view
         self.tangent = ReducedTangent(self.points, self.point_weights[:, 0],
                                       model.tangent_dtype)
+        # vec F at every sampled point from the positions: one sparse (9s, 3n) product, four
+        # times faster than gathering the elements' nodes and a batched product
+        B = gradient_operators(self.gradients[:, 0])  # (s, 9, 3k)
+        dofs = full.element_dofs[sampled]  # (s, 3k)
+        self.gradient_map = sp.csr_matrix(
+            (B.ravel(), (np.broadcast_to(np.arange(B.shape[0] * 9).reshape(-1, 9, 1), B.shape)
+                         .ravel(), np.broadcast_to(dofs[:, None, :], B.shape).ravel())),
+            shape=(9 * len(sampled), 3 * full.node_count))
         # V's rows at each cable's dofs, for its geometric stiffness
         self.cable_bases = [self.basis[cable.dofs] for cable in full.cables]
         # elements with clamped and free nodes: an element with every node clamped stays at
@@ -234,7 +242,7 @@ class ReducedCoordinates:
 
     def _deformation_gradients(self, positions_mm: np.ndarray) -> np.ndarray:
         """F (s, 3, 3) at the sampled points."""
-        return deformation_gradients(positions_mm, self.tets, self.gradients)[:, 0]
+        return (self.gradient_map @ np.ravel(positions_mm)).reshape(-1, 3, 3)
 
     def _forces(self, stress: np.ndarray) -> np.ndarray:
         """V^T g (r,) N from P (s, 3, 3) MPa at the sampled points."""
