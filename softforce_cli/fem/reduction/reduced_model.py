@@ -200,6 +200,7 @@ class ReducedCoordinates:
             (B.ravel(), (np.broadcast_to(np.arange(B.shape[0] * 9).reshape(-1, 9, 1), B.shape)
                          .ravel(), np.broadcast_to(dofs[:, None, :], B.shape).ravel())),
             shape=(9 * len(sampled), 3 * full.node_count))
+        self.gradient_map.eliminate_zeros()  # B is two thirds zeros (d_il in its rows)
         # V's rows at each cable's dofs, for its geometric stiffness
         self.cable_bases = [self.basis[cable.dofs] for cable in full.cables]
         # elements with clamped and free nodes: an element with every node clamped stays at
