@@ -50,6 +50,7 @@ def test_sense_uses_the_fitted_modulus(fitted):
                        "-o", folder / "sense", "--contact-point", "0,0,110", "--direction",
                        "0,0,-1", "--tare", "1", "--updates", "6")
     assert result.returncode == 0, result.stderr
+    assert "lock" not in result.stderr  # E fitted for the element: no locking warning
     document = json.loads((folder / "sense" / "sense.json").read_text())
     assert document["robot"]["young_modulus_mpa"] == material["young_modulus_mpa"]
     forces = {f["frame"]: f["contacts"][0]["force_n"] for f in document["frames"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import json
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,10 @@ from softforce_cli.estimation.session import FrameRange
 from softforce_cli.estimation.settings import load_settings
 from softforce_cli.io.sense_files import check_output_folder
 from softforce_cli.model.robot import load_robot
+
+
+class LockingWarning(UserWarning):
+    """Sensing with linear tetrahedra and no material calibration: forces read low."""
 
 
 @dataclass(frozen=True)
@@ -126,6 +131,14 @@ def prepare_sensing(inputs: SenseInputs, live: bool = False) -> PreparedSensing:
     json.dumps(header)  # fail here, not mid-run, on a value JSON cannot hold
     remaining = None if count is None else max(
         0, min(count, frame_range.stop or count) - frame_range.start)
+    if material is None and robot.element_name == "p1":
+        # after every check, so that a bad input stays one line: a coarse P1 body is several
+        # times too stiff where it bends (docs/locking.md); tared at rest, it follows a soft
+        # body's bending with little or no force
+        warnings.warn(LockingWarning(
+            f"{inputs.robot} uses linear tetrahedra (element p1), which lock on a coarse mesh "
+            "and read forces low (docs/locking.md); sense with [mesh] element = \"p2\" or "
+            "fit E for it with `softforce calibrate --material`"), stacklevel=2)
     return PreparedSensing(sensor, itertools.chain([first], frames), header, inputs.output,
                            inputs.force, remaining, resources)
 
