@@ -120,11 +120,14 @@ def compliance(
     model = linearization.model
     space = model.coordinates
     positions = linearization.positions_mm.ravel()
-    actuators = model.cable_jacobian(linearization.positions_mm)
-    a = actuators.shape[0]
-    solved = linearization.solve_rows(sp.vstack([sp.csr_matrix(actuators), forces]).tocsr())
+    # the cables' rows come projected (H_a T, from the few nodes they touch): neither a
+    # dense (a, 3n) row array nor its sparse copy is formed
+    shortenings, projected_a = space.cables(linearization.positions_mm)
+    projected_f = space.project_rows(forces)
+    projected_f = projected_f.toarray() if sp.issparse(projected_f) else projected_f
+    a = len(projected_a)
+    solved = linearization.factorization.solve(np.vstack([projected_a, projected_f]).T)
     projected_e = space.project_rows(effectors)
-    projected_a = space.project_rows(actuators)
     free_motion = linearization.free_motion
     return Compliance(
         W_ea=np.asarray(projected_e @ solved[:, :a]),
@@ -132,6 +135,5 @@ def compliance(
         W_aa=projected_a @ solved[:, :a],
         W_af=projected_a @ solved[:, a:],
         delta_e_free=np.asarray(effectors @ positions + projected_e @ free_motion),
-        delta_a_free=model.cable_shortenings(linearization.positions_mm)
-        + projected_a @ free_motion,
+        delta_a_free=shortenings + projected_a @ free_motion,
     )

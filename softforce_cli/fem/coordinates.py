@@ -9,7 +9,10 @@ caller sees; the solver works in c generalised coordinates with x = x_0 + T q:
   (fem.reduction.reduced_model).
 
 fem.statics and fem.compliance are written once against this protocol: residuals are
-T^T (f_ext - g(x) + H^T lam), cable rows are H T, and a solution dq lifts to T dq.
+T^T (f_ext - g(x) + H^T lam), cable rows are H T, and a solution dq lifts to T dq. A static
+solve moves through `State`s, configurations that evaluate forces, tangent and cables from q
+without forming the node positions (a reduced model's lift V q reads all of V, more than
+the rest of an evaluation), and lifts once at the end.
 """
 
 from __future__ import annotations
@@ -35,6 +38,31 @@ class Factor(Protocol):
     def refactor(self, matrix) -> Factor: ...
 
 
+class State(Protocol):
+    """A configuration x = x_0 + T q that a static solve moves through (fem.statics)."""
+
+    @property
+    def positions_mm(self) -> np.ndarray:
+        """(n, 3) mm: the node positions (lifted when first asked for)."""
+        ...
+
+    def moved(self, step: np.ndarray, alpha: float) -> State:
+        """The configuration x + alpha T step, for step (c,)."""
+        ...
+
+    def energy_and_forces(self) -> tuple[float, np.ndarray]:
+        """Elastic energy (mJ) and T^T g(x) (c,) N."""
+        ...
+
+    def forces_and_tangent(self, tensions_n: np.ndarray):
+        """T^T g(x) (c,) N and T^T (K(x) + K_cables) T (c, c) N/mm for tensions (a,) N."""
+        ...
+
+    def cables(self) -> tuple[np.ndarray, np.ndarray]:
+        """Cable shortenings (a,) mm and their rows H T (a, c), dense."""
+        ...
+
+
 class Coordinates(Protocol):
     """Generalised coordinates q of a model, x = x_0 + T q (T: (3n, c))."""
 
@@ -58,8 +86,13 @@ class Coordinates(Protocol):
         """T^T (gravity + loads) (c,) N: the dead loads in these coordinates."""
         ...
 
-    def admissible(self, positions_mm: np.ndarray) -> np.ndarray:
-        """(n, 3): the configuration of the form x_0 + T q nearest to positions (n, 3)."""
+    def state(self, positions_mm: np.ndarray | None = None) -> State:
+        """The configuration of the form x_0 + T q nearest to positions (n, 3) (None: the
+        rest configuration), to start a static solve from."""
+        ...
+
+    def cables(self, positions_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cable shortenings (a,) mm and their rows H T (a, c), dense, at positions (n, 3)."""
         ...
 
     def energy_and_forces(self, positions_mm: np.ndarray) -> tuple[float, np.ndarray]:
@@ -115,8 +148,13 @@ class FreeDofs:
             forces = forces + loads.nodal(self.model.node_count)
         return forces.ravel()[self.free]
 
-    def admissible(self, positions_mm: np.ndarray) -> np.ndarray:
-        return np.array(positions_mm, dtype=float)
+    def state(self, positions_mm: np.ndarray | None = None) -> NodalState:
+        start = self.model.rest_nodes_mm if positions_mm is None else positions_mm
+        return NodalState(self, np.array(start, dtype=float))
+
+    def cables(self, positions_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return (self.model.cable_shortenings(positions_mm),
+                self.model.cable_jacobian(positions_mm)[:, self.free])
 
     def energy_and_forces(self, positions_mm: np.ndarray) -> tuple[float, np.ndarray]:
         energy, forces = self.model.energy_and_forces(positions_mm)
@@ -137,3 +175,24 @@ class FreeDofs:
     def reactions(self, positions_mm: np.ndarray, external_n: np.ndarray) -> np.ndarray:
         total = external_n - self.model.internal_forces(positions_mm)
         return -total[self.model.fixed_nodes]
+
+
+class NodalState:
+    """A State of the full model: the node positions themselves."""
+
+    def __init__(self, space: FreeDofs, positions_mm: np.ndarray) -> None:
+        self.space = space
+        self.positions_mm = positions_mm
+
+    def moved(self, step: np.ndarray, alpha: float) -> NodalState:
+        return NodalState(self.space,
+                          self.positions_mm + alpha * self.space.lift(step).reshape(-1, 3))
+
+    def energy_and_forces(self) -> tuple[float, np.ndarray]:
+        return self.space.energy_and_forces(self.positions_mm)
+
+    def forces_and_tangent(self, tensions_n: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+        return self.space.forces_and_tangent(self.positions_mm, tensions_n)
+
+    def cables(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.space.cables(self.positions_mm)

@@ -14,6 +14,7 @@ import numpy as np
 from softforce_cli.errors import SolverError
 from softforce_cli.fem.attachment import Attachment
 from softforce_cli.fem.cables import CableInputs
+from softforce_cli.fem.coordinates import State
 from softforce_cli.fem.model import FEModel
 
 
@@ -87,34 +88,32 @@ def solve_equilibrium(
             f"{len(inputs.values)} actuation values given for {len(model.cables)} cables"
         )
     space = model.coordinates
-    start = model.rest_nodes_mm if start_mm is None else np.asarray(start_mm, dtype=float)
-    positions = space.admissible(start)
+    state = space.state(start_mm)
     external = external_forces(model, loads)
     applied = space.project_loads(loads)
     controlled = inputs.displacement_controlled
     tensions = np.where(controlled, 0.0, inputs.values)
     space.check_load(inputs, external)  # a reduced model warns outside its training box
 
-    def residual_at(x: np.ndarray, lam: np.ndarray) -> np.ndarray:
-        _, internal_x = space.energy_and_forces(x)
-        return applied - internal_x + space.project_rows(model.cable_jacobian(x)).T @ lam
-
+    # the state's evaluation; after the first, each comes from the line search's accepted
+    # trial, so that no configuration is evaluated twice
+    current = _Evaluation.at(state)
     stiffness_scale = None
     factor = None
     history: list[float] = []
     for _ in range(settings.max_iterations):
-        internal, tangent = space.forces_and_tangent(positions, tensions)
-        jacobian = space.project_rows(model.cable_jacobian(positions))
-        if stiffness_scale is None:
-            stiffness_scale = float(np.mean(tangent.diagonal()))
-        residual = applied - internal + jacobian.T @ tensions
-        violation = (inputs.values - model.cable_shortenings(positions))[controlled]
+        jacobian = current.cable_rows
+        residual = applied - current.internal + jacobian.T @ tensions
+        violation = (inputs.values - current.shortenings)[controlled]
         history.append(float(np.abs(residual).max(initial=0.0)))
         # a slack cable (no tension) may be shorter than asked, never longer
         slack = tensions[controlled] <= 0.0
         gap = np.where(slack, violation, np.abs(violation))
         if history[-1] <= settings.force_tolerance_n and np.all(gap < 1e-9):
             break
+        internal, tangent = state.forces_and_tangent(tensions)
+        if stiffness_scale is None:
+            stiffness_scale = float(np.mean(tangent.diagonal()))
         factor = space.factorize(tangent, factor)
         base = applied - internal + jacobian[~controlled].T @ tensions[~controlled]
         step = factor.solve(base)
@@ -122,9 +121,9 @@ def solve_equilibrium(
             tensions, step = _cable_tensions(
                 factor, jacobian, controlled, violation, step, tensions
             )
-        positions, full_step = _line_search(
-            model, positions, step, residual_at(positions, tensions), tensions, applied,
-            inputs, controlled, stiffness_scale, settings,
+        state, current, full_step = _line_search(
+            state, current, step, tensions, applied, inputs, controlled, stiffness_scale,
+            settings,
         )
         if full_step and np.abs(step).max() <= settings.step_tolerance_mm:
             break
@@ -133,15 +132,32 @@ def solve_equilibrium(
             f"static solve did not converge in {settings.max_iterations} Newton iterations "
             f"(force residual {history[-1]:.3g} N); reduce the load or refine the mesh"
         )
+    positions = state.positions_mm
     cable_forces = (model.cable_jacobian(positions).T @ tensions).reshape(-1, 3)
     return Equilibrium(
         positions_mm=positions,
         cable_tensions_n=tensions,
-        cable_shortenings_mm=model.cable_shortenings(positions),
+        cable_shortenings_mm=current.shortenings,
         reaction_forces_n=space.reactions(positions, external + cable_forces),
         iterations=len(history),
         residual_history_n=tuple(history),
     )
+
+
+@dataclass(frozen=True)
+class _Evaluation:
+    """What the solver needs at a state: elastic energy (mJ), T^T g (c,) N, cable
+    shortenings (a,) mm and rows H T (a, c)."""
+
+    energy: float
+    internal: np.ndarray
+    shortenings: np.ndarray
+    cable_rows: np.ndarray
+
+    @classmethod
+    def at(cls, state: State) -> _Evaluation:
+        energy, internal = state.energy_and_forces()
+        return cls(energy, internal, *state.cables())
 
 
 def _cable_tensions(factor, jacobian, controlled, violation, free_step, tensions):
@@ -170,38 +186,36 @@ def _cable_tensions(factor, jacobian, controlled, violation, free_step, tensions
     return tensions, free_step + responses @ lam
 
 
-def _line_search(model, positions, step, residual, tensions, applied, inputs, controlled,
-                 scale, settings):
+def _line_search(state, current, step, tensions, applied, inputs, controlled, scale,
+                 settings):
     """Backtrack along `step` until it decreases enough either the potential energy (with the
     cable tensions held) or the residual merit |r|^2 + (k |c|)^2 (Armijo, factor 1e-4).
 
     The energy test accepts the first Newton step from rest, where rotations briefly raise the
     residual; the residual test takes over near convergence, where energy changes drown in
-    round-off. Returns the new positions and whether the full step was taken.
+    round-off. `current` is the evaluation at `state` (alpha = 0). Returns the new state, its
+    evaluation and whether the full step was taken.
     """
-    space = model.coordinates
-    lifted = space.lift(step).reshape(-1, 3)
     load_slope = float(applied @ step)  # the dead loads' work per unit alpha: f^T T step
 
-    def evaluate(trial: np.ndarray, alpha: float) -> tuple[float, float]:
-        energy, internal = space.energy_and_forces(trial)
-        r = applied - internal + space.project_rows(model.cable_jacobian(trial)).T @ tensions
-        shortenings = model.cable_shortenings(trial)
-        c = (inputs.values - shortenings)[controlled]
+    def merits(evaluation: _Evaluation, alpha: float) -> tuple[np.ndarray, float, float]:
+        r = applied - evaluation.internal + evaluation.cable_rows.T @ tensions
+        c = (inputs.values - evaluation.shortenings)[controlled]
         c = np.where(tensions[controlled] > 0.0, c, np.maximum(c, 0.0))  # slack: one-sided
-        potential = energy - alpha * load_slope - tensions @ shortenings
+        potential = evaluation.energy - alpha * load_slope - tensions @ evaluation.shortenings
         merit = float(r @ r + scale**2 * c @ c)
-        return (potential if np.isfinite(potential) else np.inf,
+        return (r, potential if np.isfinite(potential) else np.inf,
                 merit if np.isfinite(merit) else np.inf)
 
-    potential0, merit0 = evaluate(positions, 0.0)
+    residual, potential0, merit0 = merits(current, 0.0)
     slope = -float(residual @ step)  # d(potential)/d(alpha) at alpha = 0
     alpha = 1.0
     for _ in range(settings.max_backtracks):
-        trial = positions + alpha * lifted
-        potential, merit = evaluate(trial, alpha)
+        trial = state.moved(step, alpha)
+        evaluation = _Evaluation.at(trial)
+        _, potential, merit = merits(evaluation, alpha)
         energy_ok = slope < 0 and potential <= potential0 + 1e-4 * alpha * slope
         if energy_ok or merit <= (1.0 - 1e-4 * alpha) * merit0 or merit0 == 0.0:
-            return trial, alpha == 1.0
+            return trial, evaluation, alpha == 1.0
         alpha *= 0.5
-    return trial, False
+    return trial, evaluation, False

@@ -22,6 +22,7 @@ fem.compliance work on it unchanged; callers still see full node positions (n, 3
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from dataclasses import dataclass
 from functools import cached_property
@@ -201,8 +202,19 @@ class ReducedCoordinates:
                          .ravel(), np.broadcast_to(dofs[:, None, :], B.shape).ravel())),
             shape=(9 * len(sampled), 3 * full.node_count))
         self.gradient_map.eliminate_zeros()  # B is two thirds zeros (d_il in its rows)
-        # V's rows at each cable's dofs, for its geometric stiffness
-        self.cable_bases = [self.basis[cable.dofs] for cable in full.cables]
+        # vec F at rest: a state's F is this plus G q, without lifting q to the nodes
+        self.rest_gradients = self.gradient_map @ self.rest.ravel()
+        # the cables over the few nodes their points touch (local node numbers), with V's rows
+        # there: lengths, rows H V and geometric stiffness from those nodes' positions alone
+        nodes = np.unique(np.concatenate([np.zeros(0, dtype=np.int64)]
+                                         + [c.path.node_indices.ravel() for c in full.cables]))
+        self.cable_nodes = nodes
+        self.local_cables = [dataclasses.replace(cable, path=dataclasses.replace(
+            cable.path, node_indices=np.searchsorted(nodes, cable.path.node_indices)))
+            for cable in full.cables]
+        self.cable_rest = self.rest[nodes]
+        self.cable_basis = self.basis[(3 * nodes[:, None] + np.arange(3)).ravel()]  # (3m, r)
+        self.cable_bases = [self.cable_basis[cable.dofs] for cable in self.local_cables]
         # elements with clamped and free nodes: an element with every node clamped stays at
         # rest and exerts nothing
         clamped = np.isin(full.tets, full.fixed_nodes)
@@ -237,36 +249,55 @@ class ReducedCoordinates:
             applied += self.project_rows(rows).T @ np.asarray(loads.forces_n, float).ravel()
         return applied
 
-    def admissible(self, positions_mm: np.ndarray) -> np.ndarray:
-        offset = self.basis.T @ (np.asarray(positions_mm) - self.rest).ravel()
-        return self.rest + (self.basis @ offset).reshape(-1, 3)
+    def state(self, positions_mm: np.ndarray | None = None) -> ReducedState:
+        if positions_mm is None:
+            return ReducedState(self, np.zeros(self.size))
+        return ReducedState(self, self.basis.T @ (np.asarray(positions_mm) - self.rest).ravel())
 
-    def _deformation_gradients(self, positions_mm: np.ndarray) -> np.ndarray:
-        """F (s, 3, 3) at the sampled points."""
-        return (self.gradient_map @ np.ravel(positions_mm)).reshape(-1, 3, 3)
+    def cables(self, positions_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self._cable_terms(np.asarray(positions_mm)[self.cable_nodes])
+
+    def _cable_terms(self, nodes_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Shortenings (a,) mm and rows H V (a, r) from the cables' nodes' positions (m, 3)."""
+        cables, m = self.local_cables, len(nodes_mm)
+        shortenings = np.array([cable.shortening(nodes_mm) for cable in cables])
+        rows = np.array([cable.jacobian_row(nodes_mm, m) for cable in cables])
+        return shortenings, rows.reshape(len(cables), 3 * m) @ self.cable_basis
 
     def _forces(self, stress: np.ndarray) -> np.ndarray:
         """V^T g (r,) N from P (s, 3, 3) MPa at the sampled points."""
         return self.stacked_t @ (self.point_weights * stress.reshape(-1, 9)).ravel()
 
     def energy_and_forces(self, positions_mm: np.ndarray) -> tuple[float, np.ndarray]:
-        F = self._deformation_gradients(positions_mm)
+        return self._energy_and_forces(self.gradient_map @ np.ravel(positions_mm))
+
+    def _energy_and_forces(self, gradients: np.ndarray) -> tuple[float, np.ndarray]:
+        """Energy (mJ) and V^T g (r,) N from vec F (9s,) at the sampled points."""
+        F = gradients.reshape(-1, 3, 3)
         density, stress = self.full.constitutive_at(F, self.rule_points, with_tangent=False)
         return float(density @ self.point_weights[:, 0]), self._forces(stress)
 
     def forces_and_tangent(self, positions_mm: np.ndarray, tensions_n: np.ndarray
                            ) -> tuple[np.ndarray, np.ndarray]:
-        F = self._deformation_gradients(positions_mm)
+        positions = np.asarray(positions_mm)
+        return self._forces_and_tangent(self.gradient_map @ positions.ravel(),
+                                        positions[self.cable_nodes], tensions_n)
+
+    def _forces_and_tangent(self, gradients: np.ndarray, nodes_mm: np.ndarray,
+                            tensions_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """V^T g (r,) N and K_r (r, r) N/mm from vec F (9s,) at the sampled points, the cables'
+        nodes' positions (m, 3) and their tensions (a,)."""
+        F = gradients.reshape(-1, 3, 3)
         stress = np.empty_like(F)
         pieces = []
         for where, part in self.parts:
             stress[where], factors = self.full.material.stress_and_tangent_factors(F[where], part)
             pieces.append((where, factors))
         tangent_r = self.tangent(pieces)
-        for cable, local, tension in zip(self.full.cables, self.cable_bases, tensions_n,
+        for cable, local, tension in zip(self.local_cables, self.cable_bases, tensions_n,
                                          strict=True):
             if tension != 0.0:
-                tangent_r += local.T @ cable.geometric_stiffness(positions_mm, tension) @ local
+                tangent_r += local.T @ cable.geometric_stiffness(nodes_mm, tension) @ local
         return self._forces(stress), tangent_r
 
     def factorize(self, tangent: np.ndarray, previous: DenseFactorization | None = None
@@ -293,3 +324,32 @@ class ReducedCoordinates:
         masses = self.full.node_masses_kg[fixed]
         share = masses / masses.sum() if masses.sum() > 0 else np.full(len(fixed), 1 / len(fixed))
         return local + share[:, None] * missing
+
+
+class ReducedState:
+    """A State (fem.coordinates) of a reduced model, x = x_rest + V q: F at the sampled points
+    is vec F_rest + G q and the cables' nodes are at x_rest + V q on their rows of V, so a
+    static solve's evaluations never form the node positions (a lift reads all of V)."""
+
+    def __init__(self, space: ReducedCoordinates, q: np.ndarray) -> None:
+        self.space = space
+        self.q = q
+        # G q with G stored (r, 9s): the transposed GEMV runs faster than the plain one here
+        self.gradients = space.rest_gradients + space.stacked_t.T @ q
+        self.cable_nodes_mm = space.cable_rest + (space.cable_basis @ q).reshape(-1, 3)
+
+    @cached_property
+    def positions_mm(self) -> np.ndarray:
+        return self.space.rest + (self.space.basis @ self.q).reshape(-1, 3)
+
+    def moved(self, step: np.ndarray, alpha: float) -> ReducedState:
+        return ReducedState(self.space, self.q + alpha * step)
+
+    def energy_and_forces(self) -> tuple[float, np.ndarray]:
+        return self.space._energy_and_forces(self.gradients)
+
+    def forces_and_tangent(self, tensions_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.space._forces_and_tangent(self.gradients, self.cable_nodes_mm, tensions_n)
+
+    def cables(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.space._cable_terms(self.cable_nodes_mm)
