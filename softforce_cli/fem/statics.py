@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.optimize
 
 from softforce_cli.errors import SolverError
 from softforce_cli.fem.attachment import Attachment
@@ -98,6 +99,7 @@ def solve_equilibrium(
     # the state's evaluation; after the first, each comes from the line search's accepted
     # trial, so that no configuration is evaluated twice
     current = _Evaluation.at(state)
+    tensions = _held_tensions(current, applied, controlled, tensions)
     stiffness_scale = None
     factor = None
     history: list[float] = []
@@ -158,6 +160,23 @@ class _Evaluation:
     def at(cls, state: State) -> _Evaluation:
         energy, internal = state.energy_and_forces()
         return cls(energy, internal, *state.cables())
+
+
+def _held_tensions(current: _Evaluation, applied: np.ndarray, controlled: np.ndarray,
+                   tensions: np.ndarray) -> np.ndarray:
+    """Tensions (a,) >= 0 of the displacement-controlled cables that best balance the forces
+    at the start (least squares on the residual): the starting guess, so that the first
+    tangent carries the cables' geometric stiffness when the start is a loaded state (a
+    tracking solve from the previous frame's equilibrium), and zero at rest.
+    """
+    if not controlled.any():
+        return tensions
+    rows = current.cable_rows
+    rest = applied - current.internal + rows[~controlled].T @ tensions[~controlled]
+    held, _ = scipy.optimize.nnls(np.asarray(rows[controlled]).T, -rest)
+    tensions = tensions.copy()
+    tensions[controlled] = held
+    return tensions
 
 
 def _cable_tensions(factor, jacobian, controlled, violation, free_step, tensions):
