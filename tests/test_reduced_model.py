@@ -362,3 +362,109 @@ def test_float32_tangent_keeps_newtons_answer_and_rate(beam):
     # still quadratic at the end (here 1.9e-7 N, then 2.0e-13 N; float64: 8.9e-14 N)
     history = np.array(answers[1].residual_history_n)
     assert history[-1] < 1e-3 * history[-2]
+
+
+def _plain_newton(model, inputs, loads=None, iterations=30):
+    """Equilibrium by undamped Newton on the KKT system [K, -H^T; H, 0] with every cable
+    taut, through node positions only: the forces and tangent at lifted positions, the
+    cables' dense (a, 3n) rows projected afterwards (what fem.statics did before its states).
+    Returns (positions (n, 3), tensions (a,))."""
+    space = model.coordinates
+    x = model.rest_nodes_mm.copy()
+    lam = np.zeros(len(model.cables))
+    applied = space.project_loads(loads)
+    for _ in range(iterations):
+        internal, tangent = space.forces_and_tangent(x, lam)
+        tangent = tangent.toarray() if hasattr(tangent, "toarray") else tangent
+        rows = np.asarray(space.project_rows(model.cable_jacobian(x)))
+        gap = inputs.values - model.cable_shortenings(x)
+        residual = applied - internal + rows.T @ lam
+        if np.abs(residual).max() < 1e-11 and np.abs(gap).max() < 1e-11:
+            break
+        a = len(lam)
+        system = np.block([[tangent, -rows.T], [rows, np.zeros((a, a))]])
+        solution = np.linalg.solve(system, np.concatenate([residual, gap]))
+        x = x + space.lift(solution[:-a]).reshape(-1, 3)
+        lam = lam + solution[-a:]
+    return x, lam
+
+
+def test_reduced_state_evaluates_as_its_lifted_positions(beam):
+    """A solver state (F = F_rest + G q, cables on their nodes' rows of V, no lift) gives the
+    forces, tangent, cable lengths and rows that the node positions give through the full
+    arrays (the sampled points' sparse gradient map, the (a, 3n) cable rows projected)."""
+    robot, reduction, _ = beam
+    model = ReducedModel(robot.full_fe_model, reduction)
+    space = model.coordinates
+    q = np.linspace(-4.0, 6.0, space.size)
+    state = space.state().moved(q, 0.5)
+    x = model.rest_nodes_mm + (reduction.basis @ (0.5 * q)).reshape(-1, 3)
+    np.testing.assert_allclose(state.positions_mm, x, atol=1e-12)
+    assert np.abs(x - model.rest_nodes_mm).max() > 1.0  # a real deformation
+    energy, forces = state.energy_and_forces()
+    plain_energy, plain_forces = space.energy_and_forces(x)
+    assert energy == pytest.approx(plain_energy, rel=1e-11)
+    np.testing.assert_allclose(forces, plain_forces, rtol=1e-9, atol=1e-11)
+    tensions = np.array([0.7, 0.2])
+    np.testing.assert_allclose(state.tangent(tensions),
+                               space.forces_and_tangent(x, tensions)[1], rtol=1e-9, atol=1e-9)
+    shortenings, rows = state.cables()
+    np.testing.assert_allclose(shortenings, model.cable_shortenings(x), atol=1e-12)
+    np.testing.assert_allclose(rows, space.project_rows(model.cable_jacobian(x)), atol=1e-12)
+    # and a state made from positions is their projection on the basis
+    np.testing.assert_allclose(space.state(x).q, 0.5 * q, atol=1e-10)
+
+
+@pytest.mark.parametrize("reduced", [False, True])
+def test_static_solve_is_plain_newtons_equilibrium(beam, reduced):
+    """fem.statics (states, reused evaluations, line search, held starting tensions) lands
+    on the equilibrium of an undamped Newton through node positions, for the full and the
+    reduced model, on an untrained load with both cables taut."""
+    robot, reduction, _ = beam
+    model = ReducedModel(robot.full_fe_model, reduction) if reduced else robot.full_fe_model
+    inputs = robot.cable_inputs(np.array([4.0, 3.0]))
+    loads = PointLoads(Attachment.at_nodes(robot.feature_nodes[:1]), cases(robot)[1].forces_n)
+    fast = solve_equilibrium(model, inputs, loads)
+    x, lam = _plain_newton(model, inputs, loads)
+    assert np.all(lam > 0.01)  # taut: the plain Newton's active set is the solver's
+    assert np.abs(fast.positions_mm - model.rest_nodes_mm).max() > 1.0
+    np.testing.assert_allclose(fast.positions_mm, x, atol=1e-7)
+    np.testing.assert_allclose(fast.cable_tensions_n, lam, atol=1e-8)
+    np.testing.assert_allclose(fast.cable_shortenings_mm, inputs.values, atol=1e-9)
+
+
+@pytest.mark.parametrize("reduced", [False, True])
+def test_start_at_an_equilibrium_is_converged_at_once(beam, reduced):
+    """Starting from an equilibrium of the same inputs, the tensions that hold the start
+    balance it: no Newton step is taken (before: one, at zero tensions)."""
+    robot, reduction, _ = beam
+    model = ReducedModel(robot.full_fe_model, reduction) if reduced else robot.full_fe_model
+    inputs = robot.cable_inputs(np.array([3.0, 2.0]))
+    first = solve_equilibrium(model, inputs)
+    again = solve_equilibrium(model, inputs, start_mm=first.positions_mm)
+    assert again.iterations == 1
+    np.testing.assert_allclose(again.cable_tensions_n, first.cable_tensions_n, atol=1e-7)
+    np.testing.assert_allclose(again.positions_mm, first.positions_mm, atol=1e-12)
+
+
+@pytest.mark.parametrize("reduced", [False, True])
+def test_compliance_cable_rows_are_the_projected_jacobian(beam, reduced):
+    """W_aa, W_af and delta_a_free from the cables' projected rows equal those from the dense
+    (a, 3n) cable Jacobian through node responses K^-1 H^T."""
+    from softforce_cli.fem.compliance import compliance, linearize
+
+    robot, reduction, _ = beam
+    model = ReducedModel(robot.full_fe_model, reduction) if reduced else robot.full_fe_model
+    eq = solve_equilibrium(model, robot.cable_inputs(np.array([4.0, 1.0])))
+    lin = linearize(model, eq.positions_mm, eq.cable_tensions_n)
+    features = Attachment.at_nodes(robot.feature_nodes)
+    forces = features.directional_rows(robot.feature_normals, model.node_count)[:2]
+    W = compliance(lin, features.directional_rows(robot.feature_normals, model.node_count),
+                   forces)
+    H = model.cable_jacobian(eq.positions_mm)
+    responses = lin.responses(np.vstack([H, forces.toarray()]))
+    scale = np.abs(H @ responses).max()
+    np.testing.assert_allclose(W.W_aa, (H @ responses)[:, :2], atol=1e-10 * scale)
+    np.testing.assert_allclose(W.W_af, (H @ responses)[:, 2:], atol=1e-10 * scale)
+    np.testing.assert_allclose(W.delta_a_free, model.cable_shortenings(eq.positions_mm)
+                               + H @ lin.free_motion_mm.ravel(), atol=1e-10)

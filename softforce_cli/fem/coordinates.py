@@ -54,8 +54,9 @@ class State(Protocol):
         """Elastic energy (mJ) and T^T g(x) (c,) N."""
         ...
 
-    def forces_and_tangent(self, tensions_n: np.ndarray):
-        """T^T g(x) (c,) N and T^T (K(x) + K_cables) T (c, c) N/mm for tensions (a,) N."""
+    def tangent(self, tensions_n: np.ndarray):
+        """T^T (K(x) + K_cables) T (c, c) N/mm for tensions (a,) N (the forces are known from
+        energy_and_forces)."""
         ...
 
     def cables(self) -> tuple[np.ndarray, np.ndarray]:
@@ -191,8 +192,8 @@ class NodalState:
     def energy_and_forces(self) -> tuple[float, np.ndarray]:
         return self.space.energy_and_forces(self.positions_mm)
 
-    def forces_and_tangent(self, tensions_n: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
-        return self.space.forces_and_tangent(self.positions_mm, tensions_n)
+    def tangent(self, tensions_n: np.ndarray) -> sp.csr_matrix:
+        return self.space.forces_and_tangent(self.positions_mm, tensions_n)[1]
 
     def cables(self) -> tuple[np.ndarray, np.ndarray]:
         return self.space.cables(self.positions_mm)

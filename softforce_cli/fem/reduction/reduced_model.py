@@ -284,9 +284,10 @@ class ReducedCoordinates:
                                         positions[self.cable_nodes], tensions_n)
 
     def _forces_and_tangent(self, gradients: np.ndarray, nodes_mm: np.ndarray,
-                            tensions_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """V^T g (r,) N and K_r (r, r) N/mm from vec F (9s,) at the sampled points, the cables'
-        nodes' positions (m, 3) and their tensions (a,)."""
+                            tensions_n: np.ndarray, with_forces: bool = True
+                            ) -> tuple[np.ndarray | None, np.ndarray]:
+        """V^T g (r,) N (None without with_forces) and K_r (r, r) N/mm from vec F (9s,) at the
+        sampled points, the cables' nodes' positions (m, 3) and their tensions (a,)."""
         F = gradients.reshape(-1, 3, 3)
         stress = np.empty_like(F)
         pieces = []
@@ -298,7 +299,7 @@ class ReducedCoordinates:
                                          strict=True):
             if tension != 0.0:
                 tangent_r += local.T @ cable.geometric_stiffness(nodes_mm, tension) @ local
-        return self._forces(stress), tangent_r
+        return (self._forces(stress) if with_forces else None), tangent_r
 
     def factorize(self, tangent: np.ndarray, previous: DenseFactorization | None = None
                   ) -> DenseFactorization:
@@ -348,8 +349,9 @@ class ReducedState:
     def energy_and_forces(self) -> tuple[float, np.ndarray]:
         return self.space._energy_and_forces(self.gradients)
 
-    def forces_and_tangent(self, tensions_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.space._forces_and_tangent(self.gradients, self.cable_nodes_mm, tensions_n)
+    def tangent(self, tensions_n: np.ndarray) -> np.ndarray:
+        return self.space._forces_and_tangent(self.gradients, self.cable_nodes_mm, tensions_n,
+                                              with_forces=False)[1]
 
     def cables(self) -> tuple[np.ndarray, np.ndarray]:
         return self.space._cable_terms(self.cable_nodes_mm)
