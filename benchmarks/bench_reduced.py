@@ -6,12 +6,14 @@ static solves; calibration from 9 markers; and the accuracy against the full P2 
 untrained load cases. The reduced model is trained once and cached in out/bench_reduced/
 (delete it to retrain); alone, this script prints the rows and writes the accuracy plot:
 
-    .venv/bin/python benchmarks/bench_reduced.py [--study] [--tangent]
+    .venv/bin/python benchmarks/bench_reduced.py [--study] [--tangent] [--solve]
 
 --study also sweeps the basis size and the ECSW tolerance on the cached snapshots and writes
 docs/figures/reduced_model_accuracy.png (minutes). --tangent times the ways of forming the
 reduced tangent against each other in this process, interleaved (medians), and the float32
-tangent's effect on W (docs/reduced_model.md, "speed").
+tangent's effect on W (docs/reduced_model.md, "speed"). --solve times the pieces of a
+reduced static solve's Newton iteration in turn, and the compliance's cable rows now and as
+formed before.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sp
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -157,13 +160,15 @@ def run() -> list[BenchRow]:
                          " 1.4 Hz, full p1: 31 Hz (docs/locking.md)"))
     cold_s = median_time(lambda: solve_equilibrium(model, inputs), repeats=20)
     near = solve_equilibrium(model, reduced.cable_inputs(ACTUATION - [0.5, 0.0, 0.0, 0.0]))
+    warm = solve_equilibrium(model, inputs, start_mm=near.positions_mm)
     warm_s = median_time(lambda: solve_equilibrium(model, inputs,
                                                    start_mm=near.positions_mm), repeats=20)
     rows.append(BenchRow("Reduced static solve from rest, cables 5,5,0,0 mm + gravity", cold_s,
                          20, "< 20 ms", f"{cold_s * 1e3:.0f} ms",
                          f"{equilibrium.iterations} Newton iterations"))
     rows.append(BenchRow("Reduced static solve from a frame 0.5 mm away (tracking)", warm_s, 20,
-                         "< 20 ms", f"{warm_s * 1e3:.0f} ms", "as a sensing loop starts"))
+                         "< 20 ms", f"{warm_s * 1e3:.0f} ms",
+                         f"{warm.iterations} Newton iterations; as a sensing loop starts"))
     positions = solve_equilibrium(model, reduced.cable_inputs(CALIBRATION_MM)).positions_mm
     observed = observed_markers(reduced, positions, paper_transform())
     calibrate(reduced, observed)
@@ -255,6 +260,56 @@ def tangent_study(repeats: int = 40) -> None:
               f"{errors.tension_n:.1e} N")
 
 
+def solve_study(repeats: int = 30) -> None:
+    """Where a reduced static solve's time goes: each piece of a Newton iteration at the bench
+    equilibrium, and the compliance's cable and force rows as projected now and as formed
+    before (dense (a, 3n) Jacobian, its sparse copy, both projected), interleaved (medians)."""
+    _, reduced = reduced_robot()
+    model = reduced.fe_model
+    space = model.coordinates
+    inputs = reduced.cable_inputs(ACTUATION)
+    equilibrium = solve_equilibrium(model, inputs)
+    x, tensions = equilibrium.positions_mm, equilibrium.cable_tensions_n
+    state = space.state(x)
+    tangent = state.tangent(tensions)
+    factor = space.factorize(tangent)
+    F = state.gradients.reshape(-1, 3, 3)
+    features = Attachment.at_nodes(reduced.feature_nodes)
+    contacts = np.array([0, len(reduced.feature_nodes) // 2])
+    forces = force_rows(features.subset(contacts), reduced.feature_normals[contacts],
+                        model.node_count)
+
+    def rows_before() -> None:
+        actuators = model.cable_jacobian(x)
+        space.project_rows(sp.vstack([sp.csr_matrix(actuators), forces]).tocsr())
+        space.project_rows(actuators)
+        model.cable_shortenings(x)
+
+    def rows_now() -> None:
+        _, projected = space.cables(x)
+        np.vstack([projected, space.project_rows(forces)])
+
+    timings = interleaved_medians({
+        "solve from rest": lambda: solve_equilibrium(model, inputs),
+        "tangent: law with factors, K_r, cables' stiffness": lambda: state.tangent(tensions),
+        "  of which the law with factors": lambda: [
+            model.full.material.stress_and_tangent_factors(F[where], part)
+            for where, part in space.parts],
+        "  of which the cables' geometric stiffness": lambda: [
+            cable.geometric_stiffness(state.cable_nodes_mm, 1.0)
+            for cable in space.local_cables],
+        "energy and forces (law, GEMV)": state.energy_and_forces,
+        "state: F = F_rest + G q, cable nodes": lambda: state.moved(state.q, 0.0),
+        "cables: lengths and rows H V": state.cables,
+        "LU": lambda: factor.refactor(tangent),
+        "lift V q (once per solve)": lambda: space.lift(state.q),
+        "compliance rows: cables projected + forces (now)": rows_now,
+        "compliance rows: dense Jacobian, sparse copy (before)": rows_before,
+    }, repeats)
+    for name, seconds in timings.items():
+        print(f"{name:62s} {seconds * 1e3:7.2f} ms")
+
+
 def study() -> None:
     """Accuracy and update time vs basis size and ECSW tolerance, on the cached snapshots."""
     import matplotlib
@@ -319,6 +374,9 @@ if __name__ == "__main__":
         study()
     if "--tangent" in sys.argv:
         tangent_study()
+        sys.exit()
+    if "--solve" in sys.argv:
+        solve_study()
         sys.exit()
     for bench_row in run():
         print(bench_row)
