@@ -34,7 +34,8 @@ def barycentric_coordinates(points: np.ndarray, corners: np.ndarray) -> np.ndarr
 class Attachment:
     """Points attached to a tetrahedral mesh.
 
-    node_indices : (p, k) int64, the nodes of each point's element (k = 4 or 10).
+    node_indices : (p, k) int64, the nodes of each point's element (k = 4 or 10), or of the
+                   region a spread point averages over (Attachment.mean).
     weights      : (p, k) float64 shape-function values at the point (summing to 1; may
                    leave [0, 1] for a point outside the mesh, which then keeps its exact rest
                    position).
@@ -86,6 +87,27 @@ class Attachment:
 
     def subset(self, which: np.ndarray) -> Attachment:
         return Attachment(self.node_indices[which], self.weights[which], self.inside[which])
+
+    def mean(self) -> Attachment:
+        """One point, the mean of these points: a force on it is shared equally among them
+        (a load spread over a region sampled by the points)."""
+        nodes, slot = np.unique(self.node_indices, return_inverse=True)
+        weights = np.bincount(slot.ravel(), self.weights.ravel(), len(nodes)) / len(self)
+        return Attachment(nodes[None], weights[None], np.array([bool(self.inside.all())]))
+
+    @classmethod
+    def concatenate(cls, parts: list[Attachment]) -> Attachment:
+        """The points of every part, in order; parts with fewer nodes per point are padded
+        with zero weights on their first node."""
+        k = max(part.weights.shape[1] for part in parts)
+        pad = [k - part.weights.shape[1] for part in parts]
+        return cls(
+            np.concatenate([np.pad(p.node_indices, ((0, 0), (0, w)), mode="edge")
+                            for p, w in zip(parts, pad, strict=True)]),
+            np.concatenate([np.pad(p.weights, ((0, 0), (0, w)))
+                            for p, w in zip(parts, pad, strict=True)]),
+            np.concatenate([p.inside for p in parts]),
+        )
 
 
 def attach_points(nodes_mm: np.ndarray, tets: np.ndarray, points_mm: np.ndarray) -> Attachment:

@@ -27,6 +27,8 @@ from softforce_cli.sim.scenario import FrameSpec, LoadSpec, Scenario
 
 # Load steps tried, in turn, when a state cannot be reached in one Newton solve.
 CONTINUATION_STEPS = (1, 4, 16)
+# Lattice points per hook radius that sample a weight's hook (about 120 in a whole ball).
+HOOK_SAMPLES_PER_RADIUS = 3
 
 
 @dataclass(frozen=True)
@@ -71,11 +73,13 @@ def truth_robot(scenario: Scenario) -> Robot:
 
 def load_points(
     robot: Robot, loads: tuple[LoadSpec, ...]
-) -> tuple[Attachment, np.ndarray, np.ndarray]:
-    """Attachment of each load's point, its force vector (p, 3) N and surface normal (p, 3).
+) -> tuple[Attachment, Attachment, np.ndarray, np.ndarray]:
+    """Where each load acts: (the attachment its force acts through, the attachment of its
+    point, its force vector (p, 3) N, its surface normal (p, 3)).
 
     A probe acts at the surface node nearest to its point (a probe touches the skin); a
-    weight hangs from the material point itself.
+    weight hangs from a hook: its force is spread uniformly over the material within
+    hook_radius_mm of its point (hook_region), which is the point the truth reports.
     """
     mesh = robot.mesh
     points, forces, normals = [], [], []
@@ -91,7 +95,23 @@ def load_points(
         forces.append(load.force_n * direction)
         normals.append(normal)
     attachment = robot.attach(np.array(points).reshape(-1, 3))
-    return attachment, np.array(forces).reshape(-1, 3), np.array(normals).reshape(-1, 3)
+    acting = [hook_region(robot, points[i], load.hook_radius_mm) if load.hook_radius_mm > 0
+              else attachment.subset(np.array([i])) for i, load in enumerate(loads)]
+    through = Attachment.concatenate(acting) if acting else attachment
+    return through, attachment, np.array(forces).reshape(-1, 3), np.array(normals).reshape(-1, 3)
+
+
+def hook_region(robot: Robot, point_mm: np.ndarray, radius_mm: float) -> Attachment:
+    """One attachment averaging the material within radius_mm of point_mm (3,): a cubic
+    lattice of spacing radius_mm / HOOK_SAMPLES_PER_RADIUS inside the ball and the body."""
+    steps = np.arange(-HOOK_SAMPLES_PER_RADIUS, HOOK_SAMPLES_PER_RADIUS + 1)
+    offsets = np.stack(np.meshgrid(steps, steps, steps, indexing="ij"), -1).reshape(-1, 3)
+    offsets = offsets[np.linalg.norm(offsets, axis=1) <= HOOK_SAMPLES_PER_RADIUS]
+    samples = robot.attach(point_mm + offsets * (radius_mm / HOOK_SAMPLES_PER_RADIUS))
+    if not samples.inside.any():
+        raise ScenarioError(f"a weight's hook at {np.round(point_mm, 2).tolist()} mm is outside "
+                            "the robot: put point_mm inside the body")
+    return samples.subset(samples.inside).mean()
 
 
 def solve_frame(robot: Robot, frame: FrameSpec, start: Equilibrium | None,
@@ -108,7 +128,7 @@ def solve_frame(robot: Robot, frame: FrameSpec, start: Equilibrium | None,
             f"{len(robot.cable_specs)} cables of {robot.config.source}"
         )
     target = np.array(frame.actuation, dtype=float)
-    attachment, forces, normals = load_points(robot, frame.loads)
+    acting, attachment, forces, normals = load_points(robot, frame.loads)
     model = robot.fe_model if model is None else model
     controlled = robot.cable_inputs(target).displacement_controlled
     previous_actuation = (
@@ -126,7 +146,7 @@ def solve_frame(robot: Robot, frame: FrameSpec, start: Equilibrium | None,
                 inputs = robot.cable_inputs(
                     previous_actuation + share * (target - previous_actuation)
                 )
-                loads = PointLoads(attachment, previous_forces + share * (forces - previous_forces))
+                loads = PointLoads(acting, previous_forces + share * (forces - previous_forces))
                 state = solve_equilibrium(
                     model, inputs, loads, None if state is None else state.positions_mm
                 )

@@ -50,8 +50,12 @@ _KEYS = {
     "scene": {"table_z_mm", "robot_rgb", "probe_rgb", "weight_rgb", "table_rgb"},
     "markers": {"publish", "sigma_mm"},
     "frame": {"actuation", "repeat", "load"},
-    "load": {"kind", "point_mm", "force_n", "mass_g", "direction"},
+    "load": {"kind", "point_mm", "force_n", "mass_g", "direction", "hook_radius_mm"},
 }
+# A weight hangs from a hook set in the material: its force is spread uniformly over the
+# material within this radius of its point. A force at one material point is singular on a
+# continuum (the locking-free truth's Newton solve does not converge under 1 N there).
+HOOK_RADIUS_MM = 3.0
 GRAVITY_N_PER_G = 9.81e-3
 
 
@@ -65,12 +69,15 @@ class LoadSpec:
     force_n   : magnitude in N.
     direction : (3,) unit direction of the force on the robot; None for a probe means into the
                 surface (minus the surface normal).
+    hook_radius_mm : a weight's force is spread uniformly over the material within this
+                radius of point_mm (0: at the point itself); 0 for a probe.
     """
 
     kind: str
     point_mm: tuple[float, float, float]
     force_n: float
     direction: tuple[float, float, float] | None
+    hook_radius_mm: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -232,8 +239,15 @@ def _frame(frame: dict[str, Any], index: int, check: _Checker) -> FrameSpec:
             else check.positive(load["mass_g"], f"{where}.mass_g") * GRAVITY_N_PER_G
         )
         direction = load.get("direction")
+        hook = 0.0
+        if "hook_radius_mm" in load and kind != "weight":
+            raise ScenarioError(f"{check.source}: {where}.hook_radius_mm is for weights only")
         if kind == "weight":
             direction = (0.0, 0.0, -1.0)
+            hook = check.number(load.get("hook_radius_mm", HOOK_RADIUS_MM),
+                                f"{where}.hook_radius_mm")
+            if hook < 0:
+                raise ScenarioError(f"{check.source}: {where}.hook_radius_mm must be >= 0")
         elif direction is not None:
             vector = np.array(check.vector(direction, f"{where}.direction"))
             if np.linalg.norm(vector) == 0:
@@ -241,7 +255,8 @@ def _frame(frame: dict[str, Any], index: int, check: _Checker) -> FrameSpec:
             direction = tuple(vector / np.linalg.norm(vector))
         loads.append(
             LoadSpec(
-                kind, check.vector(load.get("point_mm"), f"{where}.point_mm"), force, direction
+                kind, check.vector(load.get("point_mm"), f"{where}.point_mm"), force, direction,
+                hook,
             )
         )
     return FrameSpec(
