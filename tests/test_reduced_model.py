@@ -468,3 +468,29 @@ def test_compliance_cable_rows_are_the_projected_jacobian(beam, reduced):
     np.testing.assert_allclose(W.W_af, (H @ responses)[:, 2:], atol=1e-10 * scale)
     np.testing.assert_allclose(W.delta_a_free, model.cable_shortenings(eq.positions_mm)
                                + H @ lin.free_motion_mm.ravel(), atol=1e-10)
+
+
+def test_held_starting_tensions_balance_the_start_and_ignore_idle_cables():
+    """The starting tensions are the non-negative least-squares balance of the start's
+    residual (scipy's nnls on the whole system as reference); a cable moving no coordinate
+    (on clamped nodes only) holds nothing, and a cable that would have to push stays at 0."""
+    from softforce_cli.fem.statics import _Evaluation, _held_tensions
+
+    rng = np.random.default_rng(5)
+    rows = np.zeros((3, 40))
+    rows[0, :6] = rng.normal(size=6)
+    rows[1, 4:10] = rng.normal(size=6)  # rows[2] stays 0: an idle cable
+    truth = np.array([0.8, 0.3, 0.0])
+    internal = rows.T @ truth + rng.normal(scale=1e-3, size=40)
+    current = _Evaluation(0.0, internal, np.zeros(3), rows)
+    controlled = np.ones(3, dtype=bool)
+    held = _held_tensions(current, np.zeros(40), controlled, np.zeros(3))
+    reference, _ = nnls(rows.T, internal)
+    np.testing.assert_allclose(held, reference, atol=1e-12)
+    np.testing.assert_allclose(held, truth, atol=1e-2)
+    assert held[2] == 0.0
+    # pushing is not holding: the opposite load leaves every cable slack
+    assert np.all(_held_tensions(dataclasses.replace(current, internal=-internal),
+                                 np.zeros(40), controlled, np.zeros(3)) == 0.0)
+    idle = _Evaluation(0.0, internal, np.zeros(1), np.zeros((1, 40)))
+    assert _held_tensions(idle, np.zeros(40), controlled[:1], np.zeros(1))[0] == 0.0

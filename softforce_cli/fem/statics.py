@@ -177,9 +177,10 @@ def _held_tensions(current: _Evaluation, applied: np.ndarray, controlled: np.nda
     # and scipy's nnls is slow on tall matrices (27 ms on a full p2 Diamond's 27k dofs)
     pulled = np.asarray(rows[controlled]).T
     used = np.flatnonzero(np.any(pulled != 0.0, axis=1))
-    held, _ = scipy.optimize.nnls(pulled[used], -rest[used])
     tensions = tensions.copy()
-    tensions[controlled] = held
+    # cables moving no coordinate (all on clamped nodes) hold nothing: scipy's nnls returns
+    # uninitialised memory for an empty system
+    tensions[controlled] = scipy.optimize.nnls(pulled[used], -rest[used])[0] if len(used) else 0.0
     return tensions
 
 
