@@ -13,6 +13,7 @@ from softforce_cli.diagnosis.selection import (
     clear_improvement,
     effective_sample_size,
     explained_mm,
+    explains,
     noise_floor_mm,
     worth_refitting,
 )
@@ -171,3 +172,15 @@ def test_refit_admission_without_the_size_rule_still_asks_for_generalisation():
     one[3] = 8 * (0.58**2 - 0.52**2)
     single = HeldOut(0.58, 0.52, before, before - one)
     assert not worth_refitting(single, 0.36, size=False)
+
+
+@pytest.mark.parametrize(("before", "after", "floor", "named"), [
+    (0.564, 0.401, 0.282, False),  # hidden mass fitted as a softer north arm: 0.66 of it
+    (2.139, 0.750, 0.385, True),  # a 50% softer south arm: 0.91 of it, 1.95 x the floor
+    (1.046, 0.306, 0.281, True),  # 4 mm cable slack: ends within 1.1 x the floor
+    (0.582, 0.336, 0.360, True),  # gravity x 1.3: below the floor
+])
+def test_only_an_effect_that_explains_the_mismatch_is_named(before, after, floor, named):
+    """The held-out figures of docs/diagnosis.md's study (seed 1): an accepted effect that
+    leaves much above the floor and removes little of the excess is a partial fit."""
+    assert explains(before, after, floor) is named

@@ -30,6 +30,7 @@ from softforce_cli.diagnosis.selection import (
     confidence_intervals,
     effective_sample_size,
     excess_share,
+    explains,
     indistinct,
     noise_floor_mm,
     systematic_mm,
@@ -108,6 +109,8 @@ class Diagnosis:
     location: dict = field(default_factory=dict)
     evidence: dict = field(default_factory=dict)
     not_refitted: list[str] = field(default_factory=list)
+    # accepted effects that explain too little of the mismatch to be named (selection.explains)
+    partial: list[str] = field(default_factory=list)
     stage: str = "observations"
     interrupted: bool = False
 
@@ -318,10 +321,17 @@ def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
     relative_after = (last.heldout.rms_after_mm if last is not None and last.screened.relative
                       else relative_before)
     structured = _structured(after, relative_after, floor)
+    fitted = result.selected
+    partial = (last is not None and last.screened.relative
+               and not explains(relative_before, relative_after, floor))
+    if partial:
+        # fitted, accepted, but most of what it fits is something else: not a name to give
+        result.partial = [chosen.candidate.label for chosen in fitted]
+        result.selected = []
     if result.selected:
         result.verdict = result.selected[0].candidate.hypotheses[0].name
     else:
-        result.verdict = "unexplained" if structured else "none"
+        result.verdict = "unexplained" if structured or partial else "none"
     for chosen in result.selected:
         near = [f.candidate.label for f in result.finals if f is not chosen
                 and f.accepted and indistinct(f.heldout, chosen.heldout)]
@@ -335,8 +345,8 @@ def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
                  and indistinct(s.heldout, chosen.screened.heldout)]
         if near:
             result.groups.append([chosen.candidate.label, *near])
-    result.location = _location(result.robot, nominal if result.selected else final,
-                                result.selected)
+    # a partial fit still says where the mismatch is
+    result.location = _location(result.robot, nominal if fitted else final, fitted)
     mesh = result.robot.mesh
     given = result.uncorrected.rms()
     corrections = (np.zeros(1) if solutions.given_mm is None else
@@ -367,6 +377,7 @@ def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
         "fe_solves_refit": int(sum(f.refit.solves for f in result.finals)),
         "screened": len(result.screened),
         "not_refitted": result.not_refitted,
+        "partial_effects": result.partial,
     }
 
 

@@ -138,6 +138,11 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
         where = ", ".join(diagnosis.location.get("regions", [])) or "the whole body"
         lines.append(f"a structured mismatch ({evidence['systematic_final_mm']:.2f} mm above "
                      f"the noise floor) that no effect of the library explains, in {where}")
+        if diagnosis.partial:
+            lines.append(f"{', '.join(diagnosis.partial)} fits part of it, too little to name "
+                         f"(held-out {evidence['heldout_relative_nominal_mm']:.2f} -> "
+                         f"{evidence['heldout_relative_final_mm']:.2f} mm, noise floor "
+                         f"{diagnosis.noise_floor_mm:.2f} mm): physics outside the library?")
     for group in diagnosis.groups:
         lines.append(f"this data cannot tell apart: {', '.join(group)}")
     if (evidence.get("prediction_element") != evidence.get("element")
