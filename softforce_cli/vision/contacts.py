@@ -166,7 +166,6 @@ def object_axes(centres_mm: np.ndarray, object_points_mm: np.ndarray,
     return axes
 
 
-
 def object_regions(segmentation: Segmentation) -> np.ndarray:
     """(k,) int64 colour region of each object point (segmentation.objects' order): the
     segmentation's connected objects, which occluded_tips takes as the objects."""
