@@ -178,6 +178,8 @@ class ReducedCoordinates:
         self.parts = [(slice(end - mask.sum(), end), part)
                       for (mask, part), end in zip(masks, ends, strict=True)]
         sampled, points = reduction.elements[order], reduction.points[order]
+        # each sampled point's element nodes and rule index, in this order
+        self.tets = full.tets[sampled]
         self.rule_points = points
         # each sampled point as an element of one point: (s, 1, k, 3)
         self.gradients = full.shape_gradients[sampled, points][:, None]
