@@ -54,6 +54,11 @@ def test_sense_writes_the_three_files_of_the_contract(probes_run):
         assert set(frame["timings_ms"]) >= {"cloud", "segmentation", "matching"}
     rows = list(csv.DictReader((out / "contacts.csv").read_text().splitlines()))
     assert len(rows) == sum(len(f["contacts"]) for f in document["frames"])
+    # without --tare the sensor zeroes itself on the first frame, which shows no contact,
+    # and stops at the second, which shows one
+    assert document["tare_frames"] == "auto"
+    assert [f["status"] for f in document["frames"]] == ["tare", "ok", "ok", "ok"]
+    assert [len(f["contacts"]) for f in document["frames"]] == [0, 1, 1, 2]
 
 
 def test_sense_refuses_to_overwrite_without_force(probes_run):
@@ -121,3 +126,15 @@ def test_recording_without_actuation_is_refused_when_the_cables_need_it(tmp_path
     result = softforce("sense", bare, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
                        "-o", tmp_path / "out")
     assert_one_line_error(result, "/robot/actuation")
+
+
+def test_a_recording_that_starts_touched_is_not_zeroed(probes_run, tmp_path):
+    """Automatic taring stops at the first frame that shows a contact: from frame 1 on, the
+    probes recording is touched in every frame, so nothing is tared."""
+    _, _, calibration = probes_run
+    result = softforce("sense", PROBES, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
+                       "--frames", "1:4", "-o", tmp_path / "out")
+    assert result.returncode == 0, result.stderr
+    document = json.loads((tmp_path / "out" / "sense.json").read_text())
+    assert [f["status"] for f in document["frames"]] == ["ok", "ok", "ok"]
+    assert [len(f["contacts"]) for f in document["frames"]] == [1, 1, 2]

@@ -42,13 +42,16 @@ def sense(
         "paper); cone: within the friction cone around the normal; 3d: a free force vector "
         "per contact.")] = None,
     updates: Annotated[int | None, typer.Option(
-        "--updates", help="FE updates per frame (default 2).")] = None,
+        "--updates", help="FE updates per frame, at most (default 6; a frame stops "
+        "updating once the model stops moving).")] = None,
     record: Annotated[Path | None, typer.Option(
         "--record", help="With --live: also keep every camera frame in this MCAP recording.",
         dir_okay=False)] = None,
-    tare: Annotated[int, typer.Option(
+    tare: Annotated[int | None, typer.Option(
         "--tare", help="Take the first N frames as free of external force and zero the "
-        "observations on them (the cables' inputs should not change much after).")] = 0,
+        "observations on them (the cables' inputs should not change much after); 0: no "
+        "zeroing. Default: the first 3 frames in which no contact is seen, none once one "
+        "is (and none with --contact-point).")] = None,
     robot_rgb: Annotated[str | None, typer.Option(
         "--robot-rgb", help="R,G,B of the robot (0-255); default: learned on the first frame.")
     ] = None,

@@ -41,6 +41,11 @@ from softforce_cli.vision.settings import VisionSettings
 # Matched features within this distance of a contact give its local fit residual (mm): about
 # the spacing of 51 features on the Diamond.
 LOCAL_RESIDUAL_RADIUS_MM = 30.0
+# Without --tare, the sensor zeroes itself on this many first frames in which no contact is
+# seen: the model and the body differ by about a millimetre at rest (P2, docs/locking.md),
+# which untared reads as forces (the 12-location probes study: 55% median intensity error
+# untared, 18% tared on 3 frames).
+AUTO_TARE_FRAMES = 3
 AXES = np.eye(3)
 
 
@@ -92,7 +97,7 @@ class ForceSensor:
         settings: SenseSettings,
         known_contact: KnownContact | None = None,
         robot_rgb: np.ndarray | None = None,
-        tare_frames: int = 0,
+        tare_frames: int | None = 0,
     ) -> None:
         self.robot = robot
         self.model = robot.fe_model
@@ -113,8 +118,11 @@ class ForceSensor:
         self.tracker = ContactTracker(settings.estimation.track_radius_mm)
         # taring: the first tare_frames processed frames are taken as free of external force,
         # and each feature's mean normal offset there (observed - model) is subtracted from
-        # its later observations, as a force sensor is zeroed before use
-        self.tare_left = tare_frames
+        # its later observations, as a force sensor is zeroed before use; None tares on the
+        # first AUTO_TARE_FRAMES frames that show no contact, and stops at one that does
+        # (never with a known contact: a weight may hang from the first frame)
+        self.auto_tare = tare_frames is None and known_contact is None
+        self.tare_left = AUTO_TARE_FRAMES if self.auto_tare else tare_frames or 0
         self._tare_sum = np.zeros(len(robot.feature_nodes))
         self._tare_count = np.zeros(len(robot.feature_nodes))
         clamped = robot.mesh.nodes_mm[robot.fixed_nodes]
@@ -153,6 +161,8 @@ class ForceSensor:
             return FrameEstimate(index, time_s, "nodepth", timings_ms=timings, **counts)
         if len(segmentation.robot) < self.settings.estimation.min_robot_points:
             return FrameEstimate(index, time_s, "norobot", timings_ms=timings, **counts)
+        if self.auto_tare and len(vision.contacts.centres_mm):
+            self.tare_left = 0
         taring = self.tare_left > 0
         contact_nodes, axes = (np.zeros(0, np.int64), np.zeros((0, 3))) if taring \
             else self._contact_nodes(vision)

@@ -42,7 +42,7 @@ class SenseInputs:
     overrides: dict[str, Any] = field(default_factory=dict)
     robot_rgb: str | None = None
     record: Path | None = None
-    tare_frames: int = 0
+    tare_frames: int | None = None
     force: bool = False
 
 
@@ -105,7 +105,7 @@ def prepare_sensing(inputs: SenseInputs, live: bool = False) -> PreparedSensing:
     # the robot when it was calibrated (and a pose-only calibration has none)
     start = (first[1].actuation.values if first[1].actuation is not None
              else calibration.actuation)
-    if inputs.tare_frames < 0:
+    if inputs.tare_frames is not None and inputs.tare_frames < 0:
         raise SensingError("--tare must be a number of frames >= 0")
     sensor = ForceSensor(robot, calibration.robot_from_camera, start, settings, known, rgb,
                          inputs.tare_frames)
@@ -126,7 +126,8 @@ def prepare_sensing(inputs: SenseInputs, live: bool = False) -> PreparedSensing:
             "rest_point_mm": known.rest_point_mm.tolist(),
             "direction": known.direction.tolist()},
         "features": len(robot.feature_nodes),
-        "tare_frames": inputs.tare_frames,
+        "tare_frames": "auto" if inputs.tare_frames is None and known is None
+        else inputs.tare_frames or 0,
     }
     json.dumps(header)  # fail here, not mid-run, on a value JSON cannot hold
     remaining = None if count is None else max(
