@@ -10,8 +10,8 @@ recordings and the results (out/study_diagnosis/results.jsonl, one line per case
 a rerun continues where the last stopped. `--table` prints the markdown table of what ran
 (docs/diagnosis.md).
 
-    .venv/bin/python benchmarks/study_diagnosis.py [--cases NAME,...] [--seeds 3] [--redo]
-        [--recordings-only] [--table]
+    .venv/bin/python benchmarks/study_diagnosis.py [--cases NAME,...] [--seeds 3]
+        [--first-seed 1] [--redo] [--recordings-only] [--table]
 """
 
 from __future__ import annotations
@@ -194,6 +194,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--cases", help="comma-separated case names (default all)")
     parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--first-seed", type=int, default=1,
+                        help="start at this seed (seeds FIRST..SEEDS)")
     parser.add_argument("--redo", action="store_true",
                         help="diagnose the chosen cases again (their recordings are kept)")
     parser.add_argument("--recordings-only", action="store_true",
@@ -208,7 +210,7 @@ def main() -> None:
         print(table([rows[key] for key in sorted(rows, key=_order)]))
         return
     cases = args.cases.split(",") if args.cases else list(CASES)
-    for seed in range(1, args.seeds + 1):
+    for seed in range(args.first_seed, args.seeds + 1):
         for case in cases:
             if args.recordings_only:
                 error = ensure_recording(case, seed, FOLDER / f"{case}-s{seed}.mcap")

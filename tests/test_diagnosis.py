@@ -8,6 +8,7 @@ import pytest
 from softforce_cli.calibration.rigid import RigidTransform
 from softforce_cli.diagnosis.fitting import Candidate, HeldOut, fit_values, held_out
 from softforce_cli.diagnosis.hypotheses import Hypothesis, Inputs
+from softforce_cli.diagnosis.refit import ExactModel
 from softforce_cli.diagnosis.residuals import Field, point_residuals
 from softforce_cli.diagnosis.selection import (
     clear_improvement,
@@ -18,13 +19,15 @@ from softforce_cli.diagnosis.selection import (
     worth_refitting,
 )
 from softforce_cli.diagnosis.sensitivities import ColumnSet, column_set, state_columns
-from softforce_cli.diagnosis.states import group_states, trajectory_segments
+from softforce_cli.diagnosis.solves import SETTINGS, StateSolutions
+from softforce_cli.diagnosis.states import States, group_states, trajectory_segments
 from softforce_cli.fem.compliance import linearize
 from softforce_cli.fem.statics import solve_equilibrium
 from softforce_cli.model.effect_physics import fe_model_with_effects
-from softforce_cli.model.effects import frame_contexts, make_effect
+from softforce_cli.model.effects import FrameContext, frame_contexts, make_effect
 from softforce_cli.model.robot import load_robot
 from tests.conftest import SAMPLE_ROBOT
+from tests.test_reduced_model import write_beam
 
 
 def test_point_to_plane_residuals_are_the_offsets_along_the_normal():
@@ -184,3 +187,43 @@ def test_only_an_effect_that_explains_the_mismatch_is_named(before, after, floor
     """The held-out figures of docs/diagnosis.md's study (seed 1): an accepted effect that
     leaves much above the floor and removes little of the excess is a partial fit."""
     assert explains(before, after, floor) is named
+
+
+def test_refit_continuation_reaches_the_direct_equilibrium(tmp_path):
+    """A refit state solved by continuation (the effect's values reached in steps from the
+    neutral ones, diagnosis.refit) is the equilibrium a tight direct solve from rest finds:
+    a P2 beam 40% softer, 2 mm from its nominal shape."""
+    robot = load_robot(write_beam(tmp_path))
+    actuation = np.array([3.0, 2.0])
+    inputs = robot.cable_inputs(actuation)
+    nominal = solve_equilibrium(robot.fe_model, inputs)
+    columns = column_set(robot)
+    node_count = robot.fe_model.node_count
+    solutions = StateSolutions(robot, "p2", actuation[None], nominal.positions_mm[None],
+                               nominal.cable_tensions_n[None],
+                               np.zeros((1, len(columns.names), node_count, 3)), None, columns)
+    states = States(actuation[None], np.zeros((1, 2), np.int8), np.zeros(1),
+                    np.zeros(1, np.int64))
+    contexts = (FrameContext(0.0, actuation, np.zeros(2, np.int8), 0.0),)
+    exact = ExactModel(solutions, states, contexts, [np.zeros((0, 3))], None)
+    softer = Candidate((Hypothesis("stiffness_scale", None, ("scale",), np.array([1.0]),
+                                   np.array([0.2]), np.array([5.0])),))
+    values = np.array([0.6])
+    continued = exact._continued(softer, values, 0)
+    direct = solve_equilibrium(fe_model_with_effects(robot, softer.effects(values)), inputs)
+    np.testing.assert_allclose(continued.positions_mm, direct.positions_mm, atol=1e-3)
+    assert np.abs(direct.positions_mm - nominal.positions_mm).max() > 1.5
+
+
+def test_diagnosis_solves_do_not_stop_at_a_start_whose_imbalance_is_spread_thin(tmp_path):
+    """The same beam 40% softer started from its nominal equilibrium: the weight left
+    unbalanced is 5e-5 N per node, under any per-node force threshold, yet the equilibrium
+    is 2 mm away; diagnosis's solves end on Newton's step, and get there."""
+    robot = load_robot(write_beam(tmp_path))
+    inputs = robot.cable_inputs(np.array([3.0, 2.0]))
+    nominal = solve_equilibrium(robot.fe_model, inputs)
+    softer = fe_model_with_effects(robot, (make_effect("stiffness_scale", scale=0.6),))
+    exact = solve_equilibrium(softer, inputs)
+    solved = solve_equilibrium(softer, inputs, start_mm=nominal.positions_mm, settings=SETTINGS)
+    assert np.abs(exact.positions_mm - nominal.positions_mm).max() > 1.5
+    np.testing.assert_allclose(solved.positions_mm, exact.positions_mm, atol=1e-3)
