@@ -10,8 +10,8 @@ from softforce_cli.estimation.results import SKIP_REASONS, STAGES
 from softforce_cli.report.loading import SenseRun
 
 # Frame statuses that are not failures: tare frames zero the sensor on purpose.
-STATUS_MEANINGS = {**SKIP_REASONS, "tare": "taken to zero the sensor (--tare): no contact "
-                   "is estimated on it"}
+STATUS_MEANINGS = {**SKIP_REASONS, "tare": "taken to zero the sensor (--tare, or the first "
+                   "frames without a contact by default): no contact is estimated on it"}
 
 
 @dataclass(frozen=True)
