@@ -180,8 +180,9 @@ def table(rows: list[dict]) -> str:
             lines.append(f"| {r['case']} | {r['seed']} | error: {r['error'][-80:]} | | | | |")
             continue
         mark = "ok" if r["verdict"] == r["expected"] else "WRONG"
-        # the fitted value of the expected effect only (another effect's "scale" is not it)
-        named = (r["label"] or "").split("[")[0] == r["expected"]
+        # the fitted value of the expected effect on the expected target only (another
+        # effect's or another region's "scale" is not it)
+        named = (r["label"] or "").split("[")[0] == r["expected"] and r["target_ok"]
         value = (f"{r['fitted']:.3g} / {r['true']:.3g}" if named and r["fitted"] is not None
                  and r["true"] is not None else "-")
         lines.append(f"| {r['case']} | {r['seed']} | {r['verdict']} ({r['expected']}, {mark}) "
