@@ -109,10 +109,7 @@ class ExactModel:
                 continue
             model = shared
             if creep:
-                context = self.contexts[first[s]]
-                context = FrameContext(context.time_s, context.actuation, context.loading,
-                                       float(self.states.hold_s[s]))
-                model = fe_model_with_effects(robot, physics, context)
+                model = fe_model_with_effects(robot, physics, self._state_context(s))
             elif model is None:
                 model = robot.nominal_fe_model
             start = solutions.first_order(s, _column_changes(
@@ -141,9 +138,7 @@ class ExactModel:
         cables = [spec.name for spec in robot.cable_specs]
         controls = tuple(spec.control for spec in robot.cable_specs)
         first = int(np.flatnonzero(self.states.of_frame == s)[0])
-        context = self.contexts[first]
-        context = FrameContext(context.time_s, context.actuation, context.loading,
-                               float(self.states.hold_s[s]))
+        context = self._state_context(s)
         positions = self.solutions.positions_mm[s]
         for t in np.linspace(0.0, 1.0, CONTINUATION_STEPS + 1)[1:]:
             effects = candidate.effects(candidate.start + t * (values - candidate.start))
@@ -153,6 +148,13 @@ class ExactModel:
                                          start_mm=positions, settings=STEP_SETTINGS)
             positions = solution.positions_mm
         return solution
+
+    def _state_context(self, s: int) -> FrameContext:
+        """State s's first frame's context with the state's mean hold time (what creep's
+        model of that state needs)."""
+        context = self.contexts[int(np.flatnonzero(self.states.of_frame == s)[0])]
+        return FrameContext(context.time_s, context.actuation, context.loading,
+                            float(self.states.hold_s[s]))
 
     def field(self, predicted_mm: np.ndarray) -> Field:
         robot = self.solutions.robot

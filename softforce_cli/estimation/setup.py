@@ -126,8 +126,7 @@ def prepare_sensing(inputs: SenseInputs, live: bool = False) -> PreparedSensing:
             "rest_point_mm": known.rest_point_mm.tolist(),
             "direction": known.direction.tolist()},
         "features": len(robot.feature_nodes),
-        "tare_frames": "auto" if inputs.tare_frames is None and known is None
-        else inputs.tare_frames or 0,
+        "tare_frames": "auto" if sensor.auto_tare else sensor.tare_left,
     }
     json.dumps(header)  # fail here, not mid-run, on a value JSON cannot hold
     remaining = None if count is None else max(
