@@ -8,7 +8,7 @@ import pytest
 from softforce_cli.calibration.rigid import RigidTransform
 from softforce_cli.diagnosis.fitting import Candidate, HeldOut, fit_values, held_out
 from softforce_cli.diagnosis.hypotheses import Hypothesis, Inputs
-from softforce_cli.diagnosis.refit import ExactModel
+from softforce_cli.diagnosis.refit import ExactModel, SecantJacobian
 from softforce_cli.diagnosis.residuals import Field, point_residuals
 from softforce_cli.diagnosis.selection import (
     clear_improvement,
@@ -70,6 +70,23 @@ def test_noise_floor_recovers_the_frame_noise():
     mean = systematic[states] + rng.normal(0, 0.7, (60, 300))
     assert abs(noise_floor_mm(_field(mean), states) - 0.7) < 0.03
 
+
+
+def test_noise_floor_is_not_inflated_by_drift_within_holds():
+    """A body that creeps during each hold (a per-state shape times a relaxation growing
+    with the hold) inflates the plain within-state scatter several times; cleared of the
+    physics' shapes first, the floor is the camera's noise again."""
+    rng = np.random.default_rng(5)
+    states = np.repeat(np.arange(10), 3)
+    hold = np.tile([0.0, 0.5, 1.0], 10)
+    shapes = rng.normal(0, 1.0, (10, 4, 300))  # (S, C, n): four physics shapes per state
+    drift = 2.0 * (1 - np.exp(-hold / 0.5))[:, None] * shapes[states, 1]
+    mean = rng.normal(0, 2.0, (10, 300))[states] + drift + rng.normal(0, 0.3, (30, 300))
+    assert noise_floor_mm(_field(mean), states) > 3 * 0.3
+    assert abs(noise_floor_mm(_field(mean), states, shapes) - 0.3) < 0.02
+    # and with no drift the shapes cost nothing but their degrees of freedom
+    still = rng.normal(0, 2.0, (10, 300))[states] + rng.normal(0, 0.3, (30, 300))
+    assert abs(noise_floor_mm(_field(still), states, shapes) - 0.3) < 0.02
 
 def test_effective_sample_size_counts_correlated_frames_less():
     rng = np.random.default_rng(4)
@@ -227,3 +244,37 @@ def test_diagnosis_solves_do_not_stop_at_a_start_whose_imbalance_is_spread_thin(
     solved = solve_equilibrium(softer, inputs, start_mm=nominal.positions_mm, settings=SETTINGS)
     assert np.abs(exact.positions_mm - nominal.positions_mm).max() > 1.5
     np.testing.assert_allclose(solved.positions_mm, exact.positions_mm, atol=1e-3)
+
+
+def test_refit_secant_corrects_a_first_order_jacobian_off_by_half():
+    """Residuals linear in two parameters, r(v) = r0 - J v, seen through a first-order
+    Jacobian with one column half the true one and the other rotated: one exact step
+    measures J along that step, and a second step in another direction completes it, so
+    the corrected Jacobian is the exact one (Broyden's update on a linear map)."""
+    rng = np.random.default_rng(8)
+    frames, nodes = 6, 40
+    frame, node = np.meshgrid(np.arange(frames), np.arange(nodes), indexing="ij")
+    exact = rng.normal(0, 1, (frames * nodes, 2))
+    first_order = exact * [0.5, 1.0] + 0.3 * exact[:, ::-1]
+    r0 = rng.normal(0, 1, frames * nodes)
+
+    def field(values: np.ndarray, keep: np.ndarray) -> Field:
+        r = r0 - exact @ values
+        return Field(frame.ravel()[keep], node.ravel()[keep], r[keep], np.ones(keep.sum()))
+
+    everything = np.ones(frames * nodes, dtype=bool)
+    # the second evaluation loses a few entries (points re-associated with another node)
+    fewer = everything.copy()
+    fewer[::7] = False
+    secant = SecantJacobian(2)
+    at_zero = field(np.zeros(2), everything)
+    jacobian = secant.jacobian(at_zero, first_order)
+    secant.update(at_zero, field(np.array([0.4, 0.0]), fewer), jacobian, np.array([0.4, 0.0]))
+    jacobian = secant.jacobian(at_zero, first_order)
+    np.testing.assert_allclose(jacobian[fewer, 0], exact[fewer, 0], atol=1e-12)
+    np.testing.assert_array_equal(jacobian[~fewer], first_order[~fewer])
+    moved = field(np.array([0.4, 0.0]), fewer)
+    secant.update(moved, field(np.array([0.4, -0.3]), fewer), secant.jacobian(
+        moved, first_order[fewer]), np.array([0.0, -0.3]))
+    np.testing.assert_allclose(secant.jacobian(moved, first_order[fewer]), exact[fewer],
+                               atol=1e-12)

@@ -122,10 +122,6 @@ class Diagnosis:
     def final_field(self) -> Field | None:
         return self.selected[-1].refit.field if self.selected else self.nominal
 
-    @property
-    def final_predicted_mm(self) -> np.ndarray | None:
-        return self.selected[-1].refit.predicted_mm if self.selected else self.predicted_mm
-
 
 def diagnose_observations(robot: Robot, observations: Observations, cache: SolveCache,
                           stage: Stage | None = None,
@@ -162,8 +158,6 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
     uncorrected = nominal if solutions.given_mm is None else measure(
         points, solutions.given_mm, states.of_frame, mesh.surface_nodes, mesh.surface_faces)
     result.nominal, result.uncorrected = nominal, uncorrected
-    floor = noise_floor_mm(nominal, states.of_frame)
-    result.noise_floor_mm = floor
     frames = len(observations.frames)
     recordings = np.array([f.recording for f in observations.frames])
     segments = trajectory_segments(states, recordings)
@@ -173,6 +167,10 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
     basis = build_basis(solutions.predicted_mm, solutions.mesh_columns, mesh.surface_faces,
                         columns, states.of_frame, contexts, cables,
                         observations.robot_from_camera, states.actuation, table)
+    # the physics' own fields are cleared from the scatter first: drift within a hold is not
+    # camera noise (selection.noise_floor_mm)
+    floor = noise_floor_mm(nominal, states.of_frame, basis.normal_columns)
+    result.noise_floor_mm = floor
     inputs = basis.inputs_for(nominal)
     result.stage = "screening"
     tasks = [(Candidate((h,)), relative) for h in hypotheses(robot, columns)

@@ -57,10 +57,19 @@ UNEXPLAINED_MM = 1.5
 Z_DISTINCT = 2.0
 
 
-def noise_floor_mm(field: Field, of_frame: np.ndarray) -> float:
+def noise_floor_mm(field: Field, of_frame: np.ndarray,
+                   shapes: np.ndarray | None = None) -> float:
     """The frame-to-frame scatter (mm) of the residual field within states: what a perfect
     model still leaves per frame and node (point-weighted; one degree of freedom per
-    (state, node) group spent on its mean)."""
+    (state, node) group spent on its mean).
+
+    shapes (S, C, n), when given, are fields the model's physics can move the surface by at
+    each state (the normal sensitivity columns): each frame's deviation from its state's
+    mean is first cleared of its least-squares fit on them (C degrees of freedom more per
+    frame), so that a body that drifts during a hold (creep: the stiffness column times a
+    relaxation that grows with the hold) does not count as camera noise, while the
+    node-to-node scatter of the sensor, which no smooth field fits, stays.
+    """
     state = of_frame[field.frame]
     groups, index = np.unique(state * (int(field.node.max()) + 1) + field.node,
                               return_inverse=True)
@@ -69,9 +78,22 @@ def noise_floor_mm(field: Field, of_frame: np.ndarray) -> float:
     centre = np.bincount(index, weights=w * field.mean_mm, minlength=len(groups)) / total
     frames = np.bincount(index, minlength=len(groups))
     repeated = frames[index] > 1
-    squares = float(np.sum((w * (field.mean_mm - centre[index]) ** 2)[repeated]))
+    deviation = field.mean_mm - centre[index]
     # each group of f frames keeps f - 1 of them
-    dof = float(np.sum((w * (frames[index] - 1) / np.maximum(frames[index], 1))[repeated]))
+    kept = w * (frames[index] - 1) / np.maximum(frames[index], 1)
+    if shapes is None:
+        squares = float(np.sum((w * deviation**2)[repeated]))
+        dof = float(np.sum(kept[repeated]))
+    else:
+        squares = dof = 0.0
+        for frame in np.unique(field.frame[repeated]):
+            mine = np.flatnonzero(repeated & (field.frame == frame))
+            root = np.sqrt(w[mine])
+            design = shapes[state[mine[0]]][:, field.node[mine]].T * root[:, None]
+            coefficients, _, rank, _ = np.linalg.lstsq(design, deviation[mine] * root,
+                                                       rcond=1e-8)
+            squares += float(np.sum((deviation[mine] * root - design @ coefficients) ** 2))
+            dof += float(np.sum(kept[mine])) * max(1.0 - rank / len(mine), 0.0)
     return float(np.sqrt(squares / dof)) if dof > 0 else float("nan")
 
 
