@@ -230,9 +230,7 @@ def main() -> None:
     parser.add_argument("--table", action="store_true", help="print the table of what ran")
     args = parser.parse_args()
     FOLDER.mkdir(parents=True, exist_ok=True)
-    # one row per (case, seed), the latest; a case that failed is tried again
-    rows = {(r["case"], r["seed"]): r for r in map(json.loads, RESULTS.read_text().splitlines())
-            } if RESULTS.exists() else {}
+    rows = read_results()
     if args.table:
         print(table([rows[key] for key in sorted(rows, key=_order)]))
         return
@@ -246,10 +244,19 @@ def main() -> None:
                 continue
             if (case, seed) in rows and "error" not in rows[case, seed] and not args.redo:
                 continue
-            rows[case, seed] = run_case(case, seed)
+            row = run_case(case, seed)
+            # read again: another study may have added rows in the minutes this case took
+            rows = read_results() | {(case, seed): row}
             atomic_write_text(RESULTS, "".join(json.dumps(r) + "\n" for r in rows.values()),
                               force=True)
-            print(json.dumps(rows[case, seed]), flush=True)
+            print(json.dumps(row), flush=True)
+
+
+def read_results() -> dict[tuple[str, int], dict]:
+    """One row per (case, seed), the latest; a case that failed is tried again."""
+    if not RESULTS.exists():
+        return {}
+    return {(r["case"], r["seed"]): r for r in map(json.loads, RESULTS.read_text().splitlines())}
 
 
 def _order(key: tuple[str, int]) -> tuple[int, int]:

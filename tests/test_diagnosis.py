@@ -8,7 +8,7 @@ import pytest
 from softforce_cli.calibration.rigid import RigidTransform
 from softforce_cli.diagnosis.fitting import Candidate, HeldOut, fit_values, held_out
 from softforce_cli.diagnosis.hypotheses import Hypothesis, Inputs
-from softforce_cli.diagnosis.refit import ExactModel, SecantJacobian
+from softforce_cli.diagnosis.refit import ExactModel
 from softforce_cli.diagnosis.residuals import Field, point_residuals
 from softforce_cli.diagnosis.selection import (
     clear_improvement,
@@ -245,36 +245,3 @@ def test_diagnosis_solves_do_not_stop_at_a_start_whose_imbalance_is_spread_thin(
     assert np.abs(exact.positions_mm - nominal.positions_mm).max() > 1.5
     np.testing.assert_allclose(solved.positions_mm, exact.positions_mm, atol=1e-3)
 
-
-def test_refit_secant_corrects_a_first_order_jacobian_off_by_half():
-    """Residuals linear in two parameters, r(v) = r0 - J v, seen through a first-order
-    Jacobian with one column half the true one and the other rotated: one exact step
-    measures J along that step, and a second step in another direction completes it, so
-    the corrected Jacobian is the exact one (Broyden's update on a linear map)."""
-    rng = np.random.default_rng(8)
-    frames, nodes = 6, 40
-    frame, node = np.meshgrid(np.arange(frames), np.arange(nodes), indexing="ij")
-    exact = rng.normal(0, 1, (frames * nodes, 2))
-    first_order = exact * [0.5, 1.0] + 0.3 * exact[:, ::-1]
-    r0 = rng.normal(0, 1, frames * nodes)
-
-    def field(values: np.ndarray, keep: np.ndarray) -> Field:
-        r = r0 - exact @ values
-        return Field(frame.ravel()[keep], node.ravel()[keep], r[keep], np.ones(keep.sum()))
-
-    everything = np.ones(frames * nodes, dtype=bool)
-    # the second evaluation loses a few entries (points re-associated with another node)
-    fewer = everything.copy()
-    fewer[::7] = False
-    secant = SecantJacobian(2)
-    at_zero = field(np.zeros(2), everything)
-    jacobian = secant.jacobian(at_zero, first_order)
-    secant.update(at_zero, field(np.array([0.4, 0.0]), fewer), jacobian, np.array([0.4, 0.0]))
-    jacobian = secant.jacobian(at_zero, first_order)
-    np.testing.assert_allclose(jacobian[fewer, 0], exact[fewer, 0], atol=1e-12)
-    np.testing.assert_array_equal(jacobian[~fewer], first_order[~fewer])
-    moved = field(np.array([0.4, 0.0]), fewer)
-    secant.update(moved, field(np.array([0.4, -0.3]), fewer), secant.jacobian(
-        moved, first_order[fewer]), np.array([0.0, -0.3]))
-    np.testing.assert_allclose(secant.jacobian(moved, first_order[fewer]), exact[fewer],
-                               atol=1e-12)

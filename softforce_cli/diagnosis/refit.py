@@ -232,13 +232,7 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
             values = 0.5 * (values + neutral)
     solves = prediction.solves
     field = exact.field(prediction)
-    secant = SecantJacobian(len(values))
-
-    def jacobian_at(field: Field, values: np.ndarray) -> np.ndarray:
-        return secant.jacobian(field, shift_jacobian(candidate, exact.basis.inputs_for(field),
-                                                     values))
-
-    jacobian = jacobian_at(field, values)
+    jacobian = shift_jacobian(candidate, exact.basis.inputs_for(field), values)
     span = candidate.upper - candidate.lower
     for _ in range(REFIT_STEPS):
         if stop_requested():
@@ -259,60 +253,11 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
             break
         solves += moved.solves
         trial_field = exact.field(moved)
-        secant.update(field, trial_field, jacobian, trial - values)
         if _objective(trial_field, relative) >= _objective(field, relative):
-            # the step overshot: it still measured the exact model's slope, so the next
-            # step from the same values is taken with the corrected Jacobian
-            jacobian = jacobian_at(field, values)
-            continue
+            break
         values, prediction, field = trial, moved, trial_field
-        jacobian = jacobian_at(field, values)
+        jacobian = shift_jacobian(candidate, exact.basis.inputs_for(field), values)
     return Refit(candidate, values, field, jacobian, prediction, solves, values)
-
-
-class SecantJacobian:
-    """Broyden's rank-one corrections of the first-order Jacobian from the exact model.
-
-    The chord method converges at the rate |1 - J_exact / J_first_order| per step: 58% off for
-    a stiff compliant base (the rigid give's column is 0.8 times the response at 10 N/mm) in
-    three steps. Each exact evaluation at values + d measures J_exact d as the change of the
-    residual entries present in both fields (matched by frame and node), and the correction
-    (E, k), kept per (frame, node), is added to the first-order Jacobian of later steps.
-    """
-
-    def __init__(self, parameters: int) -> None:
-        self.keys = np.zeros(0, dtype=np.int64)
-        self.rows = np.zeros((0, parameters))
-
-    @staticmethod
-    def _keys(field: Field) -> np.ndarray:
-        return field.frame.astype(np.int64) * (1 << 32) + field.node
-
-    def _aligned(self, field: Field) -> np.ndarray:
-        """(E, k) the correction at the field's entries (0 where none was measured)."""
-        keys = self._keys(field)
-        out = np.zeros((len(keys), self.rows.shape[1]))
-        found = np.isin(keys, self.keys)
-        out[found] = self.rows[np.searchsorted(self.keys, keys[found])]
-        return out
-
-    def jacobian(self, field: Field, first_order: np.ndarray) -> np.ndarray:
-        return first_order + self._aligned(field)
-
-    def update(self, before: Field, after: Field, jacobian: np.ndarray,
-               step: np.ndarray) -> None:
-        """Correct with an exact step: `jacobian` (E, k) on `before`'s entries."""
-        size = float(step @ step)
-        if size == 0.0:
-            return
-        keys_before, keys_after = self._keys(before), self._keys(after)
-        common, i, j = np.intersect1d(keys_before, keys_after, return_indices=True)
-        # the residual falls by J_exact d where the model moved the surface by it
-        measured = before.mean_mm[i] - after.mean_mm[j]
-        miss = measured - jacobian[i] @ step
-        rows = self._aligned(Field(before.frame[i], before.node[i], before.mean_mm[i],
-                                   before.weight[i]))
-        self.keys, self.rows = common, rows + np.outer(miss, step) / size
 
 
 def _step(field: Field, jacobian: np.ndarray, relative: bool) -> np.ndarray:
