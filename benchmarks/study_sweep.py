@@ -13,7 +13,8 @@ count` in FEATURE_COUNTS, sensing with `--tare 1 --updates 6` and the truth's ca
 (a pose-only calibration, no material calibration), scored by estimation.truth_errors.
 
 Variants: `--features 51 --noise 0 1` restrict the runs; `--tag NAME --set TABLE.KEY=VALUE`
-(repeatable) senses with other settings into folders and a results file ending in _NAME,
+(repeatable) senses with other settings, and `--placement faces` with the features on the
+body's faces (docs/robot_model.md), into folders and a results file ending in _NAME,
 leaving the default's results and the figure alone (docs/sensing.md, "Why the probes read
 high", compares force models this way).
 
@@ -47,6 +48,7 @@ from softforce_cli.estimation.session import run_sensing  # noqa: E402
 from softforce_cli.estimation.setup import SenseInputs, prepare_sensing  # noqa: E402
 from softforce_cli.estimation.truth_errors import compare_with_truth, pose_from_truth, read_truth  # noqa: E402
 from softforce_cli.io.atomic import atomic_write_bytes, atomic_write_text  # noqa: E402
+from softforce_cli.model.features import PLACEMENTS  # noqa: E402
 from softforce_cli.sim.simulate import TruthCache, simulate  # noqa: E402
 
 OUT = ROOT / "out" / "study_sweep"
@@ -83,16 +85,17 @@ def scenario_text(noise_scale: float, width: int, height: int, seed: int = SEED)
     return "\n[[frame]]".join([head, frames[0], *held])
 
 
-def recordings(width: int, height: int) -> dict[tuple[float, int], Path]:
-    """One recording per noise level (and per seed of OTHER_SEEDS at scale 1); the truth
-    states solved for the first are kept in truth_states.pkl and reused for the others (and
-    by later runs)."""
+def recordings(width: int, height: int, scales: tuple[float, ...] = NOISE_SCALES
+               ) -> dict[tuple[float, int], Path]:
+    """One recording per noise level of `scales` (and per seed of OTHER_SEEDS at scale 1);
+    the truth states solved for the first are kept in truth_states.pkl and reused for the
+    others (and by later runs)."""
     OUT.mkdir(parents=True, exist_ok=True)
     cache_file = OUT / "truth_states.pkl"
     states: TruthCache = pickle.loads(cache_file.read_bytes()) if cache_file.exists() else {}
     paths = {}
-    for scale, seed in [(scale, SEED) for scale in NOISE_SCALES] + [
-            (1.0, seed) for seed in OTHER_SEEDS]:
+    for scale, seed in [(scale, SEED) for scale in scales] + [
+            (1.0, seed) for seed in OTHER_SEEDS if 1.0 in scales]:
         suffix = "" if seed == SEED else f"_seed{seed}"
         path = OUT / f"probes_{width}x{height}_noise{scale:g}{suffix}.mcap"
         if not path.exists():
@@ -108,14 +111,16 @@ def recordings(width: int, height: int) -> dict[tuple[float, int], Path]:
     return paths
 
 
-def robot_variant(count: int) -> Path:
-    """diamond_p2.toml with `[features] count` set and its mesh path made absolute."""
+def robot_variant(count: int, placement: str = "spread") -> Path:
+    """diamond_p2.toml with `[features] count` and `placement` set and its mesh path made
+    absolute."""
     text = ESTIMATOR.read_text()
     text = text.replace('path = "diamond_coarse.vtu"',
                         f'path = "{ESTIMATOR.parent / "diamond_coarse.vtu"}"')
     assert "count = 51" in text, "diamond_p2.toml no longer sets [features] count = 51"
-    path = OUT / f"diamond_p2_features{count}.toml"
-    path.write_text(text.replace("count = 51", f"count = {count}"))
+    name = f"diamond_p2_features{count}" + ("" if placement == "spread" else f"_{placement}")
+    path = OUT / f"{name}.toml"
+    path.write_text(text.replace("count = 51", f'count = {count}\nplacement = "{placement}"'))
     return path
 
 
@@ -214,20 +219,22 @@ def main() -> None:
     parser.add_argument("--tag", default="",
                         help="name of this variant: its folders and results file end with it, "
                              "and the figure and results.json are left alone")
+    parser.add_argument("--placement", default="spread", choices=PLACEMENTS,
+                        help="the robot file's `[features] placement` (docs/robot_model.md)")
     args = parser.parse_args()
     overrides = dict(_setting(text) for text in args.set)
-    if overrides and not args.tag:
-        parser.error("--set needs --tag (a variant must not overwrite the default's results)")
-    paths = recordings(args.width, args.height)
-    pose = truth_pose(paths[1.0, SEED])
+    if (overrides or args.placement != "spread") and not args.tag:
+        parser.error("--set and --placement need --tag (a variant must not overwrite the "
+                     "default's results)")
+    paths = recordings(args.width, args.height,
+                       NOISE_SCALES if args.noise is None else tuple(args.noise))
+    pose = truth_pose(next(iter(paths.values())))
     suffix = f"_{args.tag}" if args.tag else ""
     cache_file = OUT / f"sense_results_{args.width}x{args.height}{suffix}.json"
     cached = {} if not cache_file.exists() else json.loads(cache_file.read_text())
     for count in args.features:
-        robot = robot_variant(count)
+        robot = robot_variant(count, args.placement)
         for (scale, seed), recording in paths.items():
-            if args.noise is not None and scale not in args.noise:
-                continue
             key = f"features{count}_noise{scale:g}" + ("" if seed == SEED else f"_seed{seed}")
             if args.resense or key not in cached:
                 began = time.perf_counter()

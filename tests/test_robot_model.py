@@ -12,6 +12,8 @@ import pytest
 
 from softforce_cli.errors import ModelError
 from softforce_cli.fem.attachment import attach_points, barycentric_coordinates
+from softforce_cli.model.features import face_nodes
+from softforce_cli.model.mesh import TetMesh
 from softforce_cli.model.mesh_io import read_tet_mesh, rotation_from_euler_deg
 from softforce_cli.model.robot import load_robot
 from softforce_cli.model.structured import box_mesh
@@ -43,6 +45,32 @@ def test_feature_points_are_spread_evenly(sample_robot):
     nearest = distance.min(axis=1)
     # farthest-point sampling: no two features much closer than the typical spacing
     assert nearest.min() > 0.3 * np.median(nearest)
+
+
+def test_face_nodes_of_a_box_are_its_nodes_off_edges_and_corners():
+    nodes, tets = box_mesh((40.0, 30.0, 20.0), (4, 3, 2))
+    mesh = TetMesh(nodes, tets)
+    on_faces = face_nodes(nodes, mesh.surface_faces)
+    # a node is on an edge or corner when two or more of its coordinates are at the box's
+    # bounds; on a face when exactly one is
+    at_bound = (np.isclose(nodes, 0.0) | np.isclose(nodes, [40.0, 30.0, 20.0])).sum(axis=1)
+    np.testing.assert_array_equal(on_faces, np.flatnonzero(at_bound == 1))
+
+
+def test_features_placed_on_faces_keep_off_the_edges(tmp_path):
+    path = _copy_robot(tmp_path)
+    path.write_text(path.read_text().replace("count = 51", 'count = 101\nplacement = "faces"'))
+    robot = load_robot(path)
+    spread = load_robot(SAMPLE_ROBOT)
+    assert len(robot.feature_nodes) == 101
+    assert not np.isin(robot.fixed_nodes, robot.feature_nodes).any()
+
+    on_faces = face_nodes(robot.mesh.nodes_mm, robot.mesh.surface_faces)  # the box test's
+    # the Diamond's bars are box sections: spread evenly, most features land on their edges
+    assert np.isin(spread.feature_nodes, on_faces).mean() < 0.3
+    assert np.isin(robot.feature_nodes, on_faces).all()
+    apex = robot.mesh.nodes_mm[:, 2].max()
+    assert robot.mesh.nodes_mm[robot.feature_nodes, 2].max() == apex
 
 
 def test_sofa_diamond_loads_with_its_transform(sofa_diamond_dir):
@@ -118,6 +146,7 @@ def _copy_robot(tmp_path: Path) -> Path:
          "outside the mesh"),
         ('path = "diamond_coarse.vtu"', 'path = "missing.vtu"', "not found"),
         ("count = 51", "count = -3", "positive integer"),
+        ("count = 51", 'count = 51\nplacement = "edges"', "features.placement must be one of"),
     ],
 )
 def test_bad_robot_files_give_one_clear_line(tmp_path, old, new, message):

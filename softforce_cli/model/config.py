@@ -16,6 +16,7 @@ from softforce_cli.fem.cables import CONTROLS
 from softforce_cli.fem.element import ELEMENTS
 from softforce_cli.fem.materials import LAWS
 from softforce_cli.model.effects import Effect, EffectError, parse_effects
+from softforce_cli.model.features import PLACEMENTS
 from softforce_cli.model.regions import names_for_cables
 
 _KEYS = {
@@ -25,7 +26,7 @@ _KEYS = {
                  "gravity_mm_s2"},
     "fixed": {"box_mm"},
     "cable": {"name", "path_mm", "pull_point_mm", "control", "min", "max"},
-    "features": {"count", "points_mm"},
+    "features": {"count", "points_mm", "placement"},
     "marker": {"id", "position_mm"},
 }
 
@@ -82,6 +83,8 @@ class RobotConfig:
     markers: tuple[MarkerSpec, ...]
     # [[effect]] tables (model.effects; docs/effects.md), in file order
     effects: tuple[Effect, ...] = ()
+    # where `count` features go: "spread" over the whole surface, or "faces" (off edges)
+    feature_placement: str = "spread"
 
 
 def load_config(path: Path) -> RobotConfig:
@@ -143,6 +146,12 @@ def parse_config(data: dict[str, Any], source: Path) -> RobotConfig:
     if count is not None and (not isinstance(count, int) or count < 1):
         raise ModelError(f"{source}: features.count must be a positive integer, got {count!r}")
     points = features.get("points_mm")
+    placement = features.get("placement", "spread")
+    if placement not in PLACEMENTS:
+        raise ModelError(f"{source}: features.placement must be one of {', '.join(PLACEMENTS)}"
+                         f", got {placement!r}")
+    if placement != "spread" and points is not None:
+        raise ModelError(f"{source}: features.placement applies to `count`, not `points_mm`")
     cables = _cables(where.tables(data.get("cable", []), "cable"), where)
     return RobotConfig(
         source=source,
@@ -156,6 +165,7 @@ def parse_config(data: dict[str, Any], source: Path) -> RobotConfig:
             where.vector(p, f"features.points_mm[{i}]") for i, p in enumerate(points)),
         markers=_markers(where.tables(data.get("marker", []), "marker"), where),
         effects=_effects(where.tables(data.get("effect", []), "effect"), cables, where),
+        feature_placement=placement,
     )
 
 

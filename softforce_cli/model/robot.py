@@ -32,7 +32,7 @@ from softforce_cli.fem.reduction.rom_file import load_reduction, reduced_model
 from softforce_cli.model.config import CableSpec, RobotConfig, load_config
 from softforce_cli.model.effect_physics import fe_model_with_effects, reducible
 from softforce_cli.model.effects import Effect, effects_of_kind, slack_actuation
-from softforce_cli.model.features import nearest_surface_nodes, spread_surface_nodes
+from softforce_cli.model.features import face_nodes, nearest_surface_nodes, spread_surface_nodes
 from softforce_cli.model.mesh import TetMesh
 from softforce_cli.model.mesh_io import read_tet_mesh
 
@@ -226,8 +226,10 @@ def build_robot(config: RobotConfig, mesh: TetMesh) -> Robot:
                                             np.array(config.feature_points_mm))
         features = np.unique(features)
     else:
+        on_faces = face_nodes(nodes, mesh.surface_faces) \
+            if config.feature_placement == "faces" else None
         features = spread_surface_nodes(nodes, mesh.surface_nodes, fixed_nodes,
-                                        config.feature_count)
+                                        config.feature_count, among=on_faces)
     marker_positions = np.array([m.position_mm for m in config.markers]).reshape(-1, 3)
     _check_inside(mesh, marker_positions, "marker", source,
                   names=[m.id for m in config.markers])
