@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import pickle
+import re
 import sys
 import time
 import tomllib
@@ -117,10 +118,12 @@ def robot_variant(count: int, placement: str = "spread") -> Path:
     text = ESTIMATOR.read_text()
     text = text.replace('path = "diamond_coarse.vtu"',
                         f'path = "{ESTIMATOR.parent / "diamond_coarse.vtu"}"')
-    assert "count = 51" in text, "diamond_p2.toml no longer sets [features] count = 51"
+    text, replaced = re.subn(r"(?m)^count = \d+$", f'count = {count}\nplacement = "{placement}"',
+                             text)
+    assert replaced == 1, "diamond_p2.toml no longer sets [features] count on a line of its own"
     name = f"diamond_p2_features{count}" + ("" if placement == "spread" else f"_{placement}")
     path = OUT / f"{name}.toml"
-    path.write_text(text.replace("count = 51", f'count = {count}\nplacement = "{placement}"'))
+    path.write_text(text)
     return path
 
 

@@ -60,7 +60,7 @@ def test_sense_uses_the_fitted_modulus(fitted):
     forces = {f["frame"]: f["contacts"][0]["force_n"] for f in document["frames"]
               if f["contacts"]}
     # the fit sensed frame 3 right after the tare, here it follows frames 1-2 (single
-    # 424x240 frames: 0.273, 0.531, 0.687, 0.838, 0.879, 0.967 N for 0.26 to 0.96 N)
+    # 424x240 frames: 0.227, 0.453, 0.659, 0.746, 0.830, 0.913 N for 0.26 to 0.96 N)
     assert forces[3] == pytest.approx(0.66, rel=0.06)
     # heavier weights read heavier, within the noise of single 424x240 frames (see
     # docs/sensing.md): 0.26 and 0.96 N far apart
