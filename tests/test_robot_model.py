@@ -147,6 +147,8 @@ def _copy_robot(tmp_path: Path) -> Path:
         ('path = "diamond_coarse.vtu"', 'path = "missing.vtu"', "not found"),
         ("count = 51", "count = -3", "positive integer"),
         ("count = 51", 'count = 51\nplacement = "edges"', "features.placement must be one of"),
+        ("count = 51", 'points_mm = [[0.0, 0.0, 126.0]]\nplacement = "faces"',
+         "placement applies to `count`"),
     ],
 )
 def test_bad_robot_files_give_one_clear_line(tmp_path, old, new, message):
