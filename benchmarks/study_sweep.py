@@ -61,7 +61,7 @@ SEED = 3  # probes.toml's
 # Other noise realisations at the D415's level (scale 1): how much of a difference between
 # two cells one draw of the noise makes.
 OTHER_SEEDS = (4, 5, 6)
-FEATURE_COUNTS = (25, 51, 101)
+FEATURE_COUNTS = (25, 51, 101, 151)
 TARE_FRAMES = 1
 UPDATES = 6
 # Each loaded state is held this many frames (fresh sensor noise on each): P2's estimate
