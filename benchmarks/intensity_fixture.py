@@ -37,11 +37,13 @@ ESTIMATOR = ROOT / "sample_data" / "diamond" / "diamond_p2.toml"
 FIXTURE = ROOT / "tests" / "data" / "probes_truth_features.json"
 
 
-def main() -> None:
+def fixture_document(estimator_file: Path) -> dict:
+    """The truth's states at the feature points of the robot file estimator_file (under the
+    repository), and each probe's force."""
     paths = recordings(640, 480)
     states = pickle.loads((OUT / "truth_states.pkl").read_bytes())
     truth = truth_robot(load_scenario(paths[0.0, 3].with_suffix(".toml")))
-    estimator = load_robot(ESTIMATOR)
+    estimator = load_robot(estimator_file)
     rest = estimator.mesh.nodes_mm[estimator.feature_nodes]
     at_features = truth.attach(rest)
     frames = []
@@ -54,19 +56,23 @@ def main() -> None:
                           "point_mm": c.point_mm.round(5).tolist(),
                           "force_n": c.force_n.round(7).tolist()} for c in state.contacts],
         })
-    document = {
+    return {
         "scenario": str(SCENARIO.relative_to(ROOT)),
         "truth": {"element": truth.element_name, "law": truth.material.law,
                   "tetrahedra": len(truth.mesh.tets)},
-        "estimator": str(ESTIMATOR.relative_to(ROOT)),
+        "estimator": str(estimator_file.resolve().relative_to(ROOT)),
         "feature_rest_mm": rest.round(5).tolist(),
         "frames": sorted(frames, key=lambda f: (len(f["contacts"]),
                                                 sum(np.linalg.norm(c["force_n"])
                                                     for c in f["contacts"]))),
     }
+
+
+def main() -> None:
+    document = fixture_document(ESTIMATOR)
     FIXTURE.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(FIXTURE, json.dumps(document), force=True)
-    print(f"wrote {FIXTURE} ({len(frames)} states)")
+    print(f"wrote {FIXTURE} ({len(document['frames'])} states)")
 
 
 if __name__ == "__main__":

@@ -67,6 +67,8 @@ CASES: dict[str, tuple] = {
                "stiffness_n_per_mm", 2.0),
     "creep_0.3": ("viscoelastic_creep", None, 'name = "viscoelastic_creep"\n'
                   "relaxation = 0.3\ntime_constant_s = 0.5", "relaxation", 0.3),
+    "creep_0.5": ("viscoelastic_creep", None, 'name = "viscoelastic_creep"\n'
+                  "relaxation = 0.5\ntime_constant_s = 0.5", "relaxation", 0.5),
     "depth_bias_0.01": ("depth_bias", None, 'name = "depth_bias"\nscale = 0.01', "scale",
                         0.01),
     "depth_bias_-0.02": ("depth_bias", None, 'name = "depth_bias"\nscale = -0.02', "scale",

@@ -76,8 +76,13 @@ def _probe_points(contact: dict, count: int = 5000) -> np.ndarray:
 
 
 def _sense(force_model: str) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(estimated, true) contact force magnitudes (N) of each loaded state."""
-    document = json.loads(FIXTURE.read_text())
+    return sense_perfect_observations(json.loads(FIXTURE.read_text()), force_model)
+
+
+def sense_perfect_observations(document: dict, force_model: str = "axis"
+                               ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(estimated, true) contact force magnitudes (N) of each loaded state of a fixture
+    document (benchmarks/intensity_fixture.py), sensed by its estimator robot."""
     robot = load_robot(ROOT / document["estimator"])
     np.testing.assert_allclose(robot.mesh.nodes_mm[robot.feature_nodes],
                                document["feature_rest_mm"], atol=1e-4)

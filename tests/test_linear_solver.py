@@ -81,3 +81,15 @@ def test_singular_matrices_raise_a_solver_error():
     with pytest.raises(SolverError, match="singular: is the robot clamped"):
         factor = Factorization(grid_laplacian(clamped=False))
         factor.solve(np.ones(N**3) + np.arange(N**3))
+
+
+def test_non_finite_matrices_raise_a_solver_error():
+    """An inverted element gives a hyperelastic law NaN stiffness: a SolverError (which
+    sense turns into a skipped frame), not a failure deep in the factorisation."""
+    matrix = grid_laplacian().tolil()
+    matrix[5, 5] = np.nan
+    with pytest.raises(SolverError, match="non-finite"):
+        Factorization(matrix)
+    factor = Factorization(grid_laplacian())
+    with pytest.raises(SolverError, match="non-finite"):
+        factor.refactor(matrix)

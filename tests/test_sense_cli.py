@@ -138,3 +138,27 @@ def test_a_recording_that_starts_touched_is_not_zeroed(probes_run, tmp_path):
     document = json.loads((tmp_path / "out" / "sense.json").read_text())
     assert [f["status"] for f in document["frames"]] == ["ok", "ok", "ok"]
     assert [len(f["contacts"]) for f in document["frames"]] == [1, 1, 2]
+
+
+def test_a_frame_whose_fit_diverged_is_skipped_as_lost(probes_run, tmp_path):
+    """A fit more than estimation.lost_fit_mm above the first frame's means the model lost
+    the robot: the frame is skipped as `lost` (with its fit kept for the record), the model
+    starts again unloaded, and the run goes on. With a threshold of 1 micrometre: the P1
+    model reads the probes' frames 2 and 3 more than 1.5 mm worse than frame 1 (it locks)."""
+    _, _, calibration = probes_run
+    settings = tmp_path / "settings.toml"
+    settings.write_text("[estimation]\nlost_fit_mm = 0.001\n")
+    result = softforce("sense", PROBES, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
+                       "--frames", "1:4", "--tare", "0", "--settings", settings,
+                       "-o", tmp_path / "out")
+    assert result.returncode == 0, result.stderr
+    document = json.loads((tmp_path / "out" / "sense.json").read_text())
+    frames = document["frames"]
+    assert [f["status"] for f in frames] == ["ok", "lost", "lost"]
+    assert all(f["contacts"] == [] and f["fit_rms_mm"] > frames[0]["fit_rms_mm"] + 0.001
+               for f in frames[1:])
+    assert document["summary"]["skipped"] == {"lost": 2}
+    settings.write_text("[estimation]\nlost_fit_mm = 0\n")
+    refused = softforce("sense", PROBES, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
+                        "-o", tmp_path / "out2", "--settings", settings)
+    assert_one_line_error(refused, "lost_fit_mm")

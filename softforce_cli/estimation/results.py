@@ -13,6 +13,7 @@ SKIP_REASONS = {
     "fewmatches": "too few feature points matched to the point cloud for the unknowns",
     "noactuation": "the frame has no actuation message and none came before",
     "solver": "the FE update or the intensity QP failed",
+    "lost": "the FE model diverged from the observed robot; it starts again unloaded",
 }
 
 

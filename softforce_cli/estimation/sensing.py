@@ -108,13 +108,14 @@ class ForceSensor:
         self.features = Attachment.at_nodes(robot.feature_nodes)
         self.controls = tuple(spec.control for spec in robot.cable_specs)
         self.actuation = np.asarray(start_actuation, dtype=float)
-        start = solve_equilibrium(self.model, robot.cable_inputs(self.actuation))
-        self.positions = start.positions_mm
-        self.tensions = start.cable_tensions_n
+        self.restart()
         self._normals_at: np.ndarray | None = None
         self._normals = np.zeros((0, 3))
         self.linear: LinearizedModel | None = None
         self.relinearizations = 0
+        # the first frame's fit: the model's own offset from the robot (P1 locks: 10 mm and
+        # more), which a lost model's fit is measured above
+        self.first_fit_mm: float | None = None
         self.tracker = ContactTracker(settings.estimation.track_radius_mm)
         # taring: the first tare_frames processed frames are taken as free of external force,
         # and each feature's mean normal offset there (observed - model) is subtracted from
@@ -131,6 +132,14 @@ class ForceSensor:
         if known_contact is not None:
             point = np.asarray(known_contact.rest_point_mm, dtype=float)[None]
             self.known_points = robot.attach(point)
+
+    def restart(self) -> None:
+        """Move the FE configuration to the unloaded equilibrium at the current actuation
+        (where sensing starts, and starts again when it has lost the robot)."""
+        start = solve_equilibrium(self.model, self.robot.cable_inputs(self.actuation))
+        self.positions = start.positions_mm
+        self.tensions = start.cable_tensions_n
+        self.linear = None
 
     def node_normals(self) -> np.ndarray:
         """(n, 3) outward unit normals of the mesh's nodes at the configuration, computed once
@@ -177,6 +186,17 @@ class ForceSensor:
             return FrameEstimate(index, time_s, "solver", timings_ms=timings, **counts)
         if outcome is None:
             return FrameEstimate(index, time_s, "fewmatches", timings_ms=timings, **counts)
+        fit_rms_mm = float(np.sqrt(np.mean(outcome.residual_mm**2)))
+        if self.first_fit_mm is None:
+            self.first_fit_mm = fit_rms_mm
+        if fit_rms_mm > self.first_fit_mm + self.settings.estimation.lost_fit_mm:
+            try:
+                self.restart()
+            except SolverError:
+                self.positions, self.tensions = saved
+                self.linear = None
+            return FrameEstimate(index, time_s, "lost", timings_ms=timings, **counts,
+                                 fit_rms_mm=fit_rms_mm)
         status = "tare" if taring else "ok"
         contacts = () if taring else self._contacts(outcome)
         clock.lap("update")
@@ -186,7 +206,7 @@ class ForceSensor:
             features_matched=int(matches.matched.sum()),
             features_hidden=int(matches.hidden.sum()),
             features_rejected=int(matches.rejected.sum()),
-            fit_rms_mm=float(np.sqrt(np.mean(outcome.residual_mm**2))),
+            fit_rms_mm=fit_rms_mm,
             cable_tensions_n=self.tensions.copy(), timings_ms=timings,
         )
 

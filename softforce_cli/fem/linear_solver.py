@@ -39,6 +39,8 @@ from softforce_cli.errors import SolverError
 
 SINGULAR = ("the stiffness matrix is singular: is the robot clamped (a [[fixed]] box that "
             "catches nodes) and its mesh connected?")
+NON_FINITE = ("the stiffness matrix has non-finite entries: an element is inverted (the "
+              "configuration left the material law's range)")
 # cholmod.options["supernodal"]: 0 simplicial (L D L^T), 2 supernodal (L L^T only).
 SIMPLICIAL, SUPERNODAL = 0, 2
 # Shifts sigma tried for K + sigma I, as fractions of K's median diagonal entry: from just
@@ -84,6 +86,8 @@ class Factorization:
 
     def refactor(self, matrix: sp.spmatrix) -> Factorization:
         csr = sp.csr_matrix(matrix)
+        if not np.all(np.isfinite(csr.data)):
+            raise SolverError(NON_FINITE)
         if not csr.has_sorted_indices:
             csr = csr.sorted_indices()
         same = self._pattern is not None and (
