@@ -15,6 +15,8 @@ the figures in docs/figures/, which docs/sensing.md quotes.
   locking-free truth is soft: 0.6 N bends its upper bar 37 mm, beyond what feature matching
   follows), and frames without contact (phantoms).
 - A sweep of feature count (25, 51, 101) on the probes: error and frame rate.
+- `--scenario FILE`: any scenario (benchmarks/scenarios/: another actuation, an oblique
+  camera), sensed with the truth's camera pose and tared on its first 3 frames.
 """
 
 from __future__ import annotations
@@ -202,6 +204,19 @@ def probes_study(robot_file: Path, pose: Path | None, width: int, height: int, n
             "median_total_ms": document["summary"]["median_total_ms"]}
 
 
+def scenario_study(scenario: Path, robot_file: Path) -> dict:
+    """Simulate a scenario file once (its robot path relative to it, as `simulate` reads it)
+    and sense it with the truth's camera pose, tared on its first HOLD_FRAMES frames."""
+    OUT.mkdir(parents=True, exist_ok=True)
+    path = OUT / f"{scenario.stem}.mcap"
+    if not path.exists():
+        simulate(scenario, path)
+    document = sense(path, robot_file, truth_pose(path), f"{scenario.stem}_{robot_file.stem}",
+                     tare_frames=HOLD_FRAMES)
+    comparison = compare_with_truth(document, read_truth(path.with_suffix(".truth.json")))
+    return {**comparison.summary(), "fps": document["summary"]["frames_per_s"]}
+
+
 def truth_pose(path: Path) -> Path:
     """The camera pose of a simulated recording's truth as a pose-only calibration."""
     pose = OUT / f"pose_{path.stem}.json"
@@ -221,10 +236,15 @@ def main() -> None:
                         help="with --probes-only: every N-th of the 12 probe locations")
     parser.add_argument("--first", type=int, default=0,
                         help="with --probes-only: the first location taken")
+    parser.add_argument("--scenario", type=Path,
+                        help="sense this scenario file's recording instead (simulated once)")
     parser.add_argument("--table-iii-only", action="store_true",
                         help="Table III alone (markers and material calibration included)")
     args = parser.parse_args()
     name = args.robot.stem if args.robot.stem != "diamond" else args.robot.parent.name
+    if args.scenario:
+        print(json.dumps(scenario_study(args.scenario, args.robot), indent=1))
+        return
     if args.table_iii_only:
         results = {"robot": str(args.robot), "resolution": [args.width, args.height],
                    "table_iii": table_iii(args.robot, pose_calibration(args.robot),
