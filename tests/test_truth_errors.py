@@ -3,6 +3,7 @@ documents whose errors are known."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from softforce_cli.estimation.truth_errors import compare_with_truth
@@ -49,3 +50,19 @@ def test_contacts_pair_within_20_mm_and_phantoms_push_more_than_50_millinewtons(
     assert summary["phantoms"] == 1 and summary["max_phantom_n"] == 0.12
     assert summary["intensity_error_median"] == pytest.approx(0.15)
     assert summary["location_error_max_mm"] == pytest.approx(6.0)
+
+
+def test_an_object_seen_as_two_contacts_adds_their_forces():
+    """One probe seen as two clusters 10 mm apart, the QP giving one of them no force (the
+    424x240 scenario of docs/sensing.md): the nearer estimate is paired, the other is a part
+    of the same contact, not a phantom, and their force vectors add."""
+    truth = {"frames": [{"index": 0, "contacts": [_true([52, 1, 58], 0.15)]}]}
+    sense = {"frames": [{"frame": 0, "status": "ok", "contacts": [
+        {"position_mm": [47, 5, 63], "force_n": 0.0, "force_vector_n": [0, 0, 0]},
+        {"position_mm": [47, -5, 63], "force_n": 0.147, "force_vector_n": [0.06, 0, -0.1342]},
+    ]}]}
+    comparison = compare_with_truth(sense, truth)
+    assert comparison.phantoms == () and comparison.split == 1
+    [pair] = comparison.paired
+    assert pair.estimated_force_n == pytest.approx(np.hypot(0.06, 0.1342))
+    assert pair.location_error_mm == pytest.approx(np.sqrt(25 + 16 + 25))

@@ -144,8 +144,9 @@ def _sense_sections(run: SenseRun, overview: Overview, truth: TruthReport | None
             page.table_html(("statistic", "value"), [(k, v) for k, v in stats.items()])
             + page.paragraph("Intensity errors are relative (|estimated - true| / true) over "
                              "located contacts; a true contact is located by an estimate "
-                             "within 20 mm; an estimate pushing more than 50 mN with no "
-                             "true contact is a phantom.")))
+                             "within 20 mm, and further estimates within 20 mm of it add "
+                             "to it; an estimate pushing more than 50 mN with no true "
+                             "contact is a phantom.")))
     elif run.input_path("recording"):
         notes.append("no ground truth beside the recording: no comparison with the truth")
     return sections
