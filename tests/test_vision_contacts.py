@@ -12,7 +12,12 @@ import pytest
 
 from softforce_cli.calibration.rigid import RigidTransform
 from softforce_cli.io.mcap_reader import iter_frames
-from softforce_cli.vision.contacts import detect_contacts, euclidean_clusters, nearest_features
+from softforce_cli.vision.contacts import (
+    detect_contacts,
+    euclidean_clusters,
+    merge_close_clusters,
+    nearest_features,
+)
 from softforce_cli.vision.pipeline import process_frame
 from softforce_cli.vision.point_cloud import PointCloud, cloud_from_frame
 from softforce_cli.vision.segmentation import Regions, Segmentation, learn_robot_colour
@@ -297,3 +302,18 @@ def test_the_sample_west_probe_hiding_its_tip_is_found(sample_robot):
     assert len(alone) == 1 and not alone.occluded.any()  # Algorithm 2 misses the west probe
     for index in (0, 1, 2):  # no phantom, no second contact for the one north probe
         assert len(contacts(index, VisionSettings())) == len(truth["frames"][index]["contacts"])
+
+
+def test_clusters_closer_than_the_merge_distance_are_one_contact():
+    """One probe's tip patch split into clusters 7 mm apart is one contact at the clusters'
+    point-weighted mean; a cluster 33 mm away stays apart; a chain of steps under the
+    distance merges whole; 0 merges nothing (the paper)."""
+    centres = np.array([[40.0, 0, 0], [0.0, 0, 0], [7.0, 0, 0]])
+    sizes = np.array([2, 3, 1])
+    merged, merged_sizes = merge_close_clusters(centres, sizes, 10.0)
+    np.testing.assert_allclose(merged, [[1.75, 0, 0], [40.0, 0, 0]])
+    assert merged_sizes.tolist() == [4, 2]
+    chain = np.array([[0.0, 0, 0], [8.0, 0, 0], [16.0, 0, 0]])
+    merged, merged_sizes = merge_close_clusters(chain, np.array([1, 1, 1]), 10.0)
+    np.testing.assert_allclose(merged, [[8.0, 0, 0]])
+    assert merge_close_clusters(centres, sizes, 0.0)[0] is centres

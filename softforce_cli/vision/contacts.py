@@ -95,7 +95,8 @@ def detect_contacts(
     kept = labels >= 0
     sums = np.stack([np.bincount(labels[kept], points[kept, a], len(sizes)) for a in range(3)],
                     axis=1)
-    centres = sums / np.maximum(sizes, 1)[:, None]
+    centres, sizes = merge_close_clusters(sums / np.maximum(sizes, 1)[:, None], sizes,
+                                          settings.contact_merge_mm)
     tips = np.zeros((0, 3))
     if settings.occluded_tip_mm > 0:
         # an object touching anywhere, the clamped box included, is Algorithm 2's: its axis
@@ -110,6 +111,22 @@ def detect_contacts(
         points,
         np.repeat([False, True], [len(centres), len(tips)]),
     )
+
+
+def merge_close_clusters(centres_mm: np.ndarray, sizes: np.ndarray, distance_mm: float
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Clusters (c, 3) of sizes (c,) whose centres are joined by chains of steps shorter than
+    distance_mm become one, at their point-weighted mean -> (centres (m, 3), sizes (m,)),
+    largest first (0 merges nothing)."""
+    if distance_mm <= 0 or len(centres_mm) < 2:
+        return centres_mm, sizes
+    labels, _ = euclidean_clusters(centres_mm, distance_mm, 1)
+    count = labels.max() + 1
+    merged_sizes = np.bincount(labels, sizes, count)
+    sums = np.stack([np.bincount(labels, sizes * centres_mm[:, a], count) for a in range(3)],
+                    axis=1)
+    order = np.argsort(-merged_sizes, kind="stable")
+    return (sums / merged_sizes[:, None])[order], merged_sizes[order].astype(np.int64)
 
 
 def nearest_features(centres_mm: np.ndarray, feature_positions_mm: np.ndarray) -> np.ndarray:

@@ -65,6 +65,13 @@ class VisionSettings:
                              survived the outlier filter, and a probe pressing on a side the
                              camera does not see leaves only one to five contact points at
                              640x480 (the sample probe on the east elbow: one).
+    contact_merge_mm       : 10.0, clusters whose centres are closer than this are one contact
+                             (at their point-weighted mean): a 10 mm probe's tip patch seen
+                             through depth noise splits into clusters 6-8 mm apart
+                             (benchmarks/scenarios/other_actuation.toml), each of which would
+                             get a force column of its own; two objects that close are not
+                             told apart by the feature points anyway (10-15 mm apart with
+                             151). 0 keeps every cluster (the paper).
     contact_exclusion_mm   : 5.0, contact points within this of the clamped region's box
                              (given by the caller) are ignored: a clamp or fixture touching
                              the base exerts no force the model can explain.
@@ -125,6 +132,7 @@ class VisionSettings:
     contact_min_neighbours: int = 3
     cluster_tolerance_mm: float = 5.0
     cluster_min_points: int = 1
+    contact_merge_mm: float = 10.0
     contact_exclusion_mm: float = 5.0
     occluded_tip_mm: float = 8.0
     match_line_mm: float = 4.0
