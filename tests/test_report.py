@@ -100,6 +100,25 @@ def test_truth_statistics_match_a_direct_computation(sense_out):
     assert stats["true_contacts"] == sum(len(truth[f]["contacts"]) for f in (1, 2, 3))
 
 
+def test_the_csv_rebuilt_run_scores_as_sense_json_does(sense_out):
+    """The report scores the run rebuilt from its CSVs (whole after an interruption): every
+    field the scoring reads, the force vectors that a split contact's parts add included,
+    comes back, so its statistics are sense.json's."""
+    from softforce_cli.estimation.truth_errors import compare_with_truth, read_truth
+    from softforce_cli.report.truth import sense_document
+
+    run = load_run(sense_out).sense
+    rebuilt = sense_document(run)
+    document = json.loads((sense_out / "sense.json").read_text())
+    for mine, theirs in zip(rebuilt["frames"], document["frames"], strict=True):
+        assert len(mine["contacts"]) == len(theirs["contacts"])
+        for a, b in zip(mine["contacts"], theirs["contacts"], strict=True):
+            np.testing.assert_allclose(a["force_vector_n"], b["force_vector_n"], atol=1e-6)
+    truth = read_truth(PROBES_TRUTH)
+    assert (compare_run_with_truth(run, PROBES_TRUTH).statistics
+            == compare_with_truth(document, truth).summary())
+
+
 def test_rebuilt_shape_matches_the_recorded_actuation(sense_out, sample_robot):
     """The shape under the sensed cable tensions (force control: the fallback without the
     recording) against an independent solve: the recording's own cable displacements

@@ -35,9 +35,10 @@ def sense_document(run: SenseRun) -> dict[str, Any]:
     for index, status in zip(run.frames["frame"].astype(int), run.frames["status"], strict=True):
         rows = contacts["frame"] == index
         positions = np.column_stack([contacts[k][rows] for k in ("x_mm", "y_mm", "z_mm")])
+        vectors = np.column_stack([contacts[k][rows] for k in ("fx_n", "fy_n", "fz_n")])
         frames.append({"frame": int(index), "status": str(status), "contacts": [
-            {"position_mm": p.tolist(), "force_n": float(f)}
-            for p, f in zip(positions, contacts["force_n"][rows], strict=True)]})
+            {"position_mm": p.tolist(), "force_n": float(f), "force_vector_n": v.tolist()}
+            for p, f, v in zip(positions, contacts["force_n"][rows], vectors, strict=True)]})
     return {"frames": frames}
 
 
