@@ -82,9 +82,12 @@ def _calibration(recording: Path) -> Path:
 def robot_with_element(element: str) -> Path:
     """The sample robot file with `[mesh] element` set (p1 is the file as shipped); "p2-rom":
     the p2 element through its reduced model (benchmarks/bench_reduced.py trains and caches
-    it, about 10 minutes on 2 free cores the first time)."""
+    it, about 10 minutes on 2 free cores the first time); "p2-shipped": the sample P2 robot
+    file as shipped (sample_data/diamond/diamond_p2.toml, 151 features)."""
     if element == "p1":
         return ROBOT
+    if element == "p2-shipped":
+        return ROBOT.parent / "diamond_p2.toml"
     path = OUT / f"diamond_{element}.toml"
     mesh = f'path = "{ROBOT.parent / "diamond_coarse.vtu"}"\nelement = "{element}"'
     if element == "p2-rom":
@@ -130,6 +133,7 @@ CASES = (
     ("default settings", "p1", {}),
     ("default settings", "p2", {}),
     ("default settings", "p2-rom", {}),
+    ("default settings", "p2-shipped", {}),
     ("voxel 1.8 mm, outlier 10 / contact 1 neighbours", "p1",
      {"vision.voxel_mm": 1.8, "vision.outlier_min_neighbours": 10,
       "vision.contact_min_neighbours": 1}),
@@ -147,9 +151,11 @@ def run() -> list[BenchRow]:
         def percent(value: float | None) -> str:
             return "-" if value is None else f"{100 * value:.0f}%"
 
+        robot = ("p2 robot as shipped (diamond_p2.toml), 151 features"
+                 if element == "p2-shipped" else
+                 f"{element.replace('-rom', ' reduced')} robot, 51 features")
         rows.append(BenchRow(
-            f"sense, whole pipeline 640x480, coarse {element.replace('-rom', ' reduced')} "
-            f"robot, 51 features, {label}",
+            f"sense, whole pipeline 640x480, coarse {robot}, {label}",
             result["median_ms"] * 1e-3, result["frames"] - 2, ">= 30 fps",
             f"{1e3 / result['median_ms']:.0f} fps",
             f"90th percentile frame {result['p90_ms']:.0f} ms; CPU time per frame (mean, "
