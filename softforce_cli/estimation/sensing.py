@@ -108,10 +108,10 @@ class ForceSensor:
         self.features = Attachment.at_nodes(robot.feature_nodes)
         self.controls = tuple(spec.control for spec in robot.cable_specs)
         self.actuation = np.asarray(start_actuation, dtype=float)
+        self.linear: LinearizedModel | None = None
         self.restart()
         self._normals_at: np.ndarray | None = None
         self._normals = np.zeros((0, 3))
-        self.linear: LinearizedModel | None = None
         self.relinearizations = 0
         # the first frame's fit: the model's own offset from the robot (P1 locks: 10 mm and
         # more), which a lost model's fit is measured above

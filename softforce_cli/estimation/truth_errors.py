@@ -116,8 +116,9 @@ def compare_with_truth(sense: dict[str, Any], truth: dict[str, Any]) -> TruthCom
         rows, cols = linear_sum_assignment(distance) if distance.size else ([], [])
         located = {int(r): [int(c)] for r, c in zip(rows, cols, strict=True)
                    if distance[r, c] <= LOCATION_TOLERANCE_MM}
+        assigned = {parts[0] for parts in located.values()}
         for k, estimate in enumerate(estimates):
-            if any(k in parts for parts in located.values()):
+            if k in assigned:
                 continue
             near = [r for r in located if distance[r, k] <= LOCATION_TOLERANCE_MM]
             if near:
