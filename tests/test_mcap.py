@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import signal
 import warnings
 from pathlib import Path
 
@@ -226,7 +227,8 @@ def test_interruption_before_any_frame_leaves_existing_file(tmp_path):
 
 
 def test_interruption_inside_a_frame_drops_only_that_frame(tmp_path):
-    """Ctrl-C between two messages of frame 4: frames 0-3 stay whole, frame 4 is skipped."""
+    """An interruption raised between two messages of frame 4 (as a crash would cut it):
+    frames 0-3 stay whole, frame 4 is skipped."""
     frames = make_frames(6)
     path = tmp_path / "mid.mcap"
     with pytest.raises(KeyboardInterrupt), RecordingWriter(path) as writer:
@@ -247,6 +249,34 @@ def test_interruption_inside_a_frame_drops_only_that_frame(tmp_path):
     with pytest.warns(RecordingWarning, match="skipped 1 incomplete"):
         got = list(iter_frames(path))
     for g, w in zip(got, frames[:4], strict=True):
+        assert_same_frame(g, w)
+
+
+def test_a_signal_inside_a_frame_lands_after_it(tmp_path):
+    """A real SIGINT between two messages of frame 4 waits until frame 4 is whole."""
+    frames = make_frames(6)
+    path = tmp_path / "held.mcap"
+    with pytest.raises(KeyboardInterrupt), RecordingWriter(path) as writer:
+        for frame in frames[:4]:
+            writer.write_frame(frame)
+        add_message = writer._writer.add_message
+        calls = []
+
+        def signalled_add(**kwargs):
+            calls.append(kwargs)
+            if len(calls) == 3:
+                signal.raise_signal(signal.SIGINT)
+            add_message(**kwargs)
+
+        writer._writer.add_message = signalled_add
+        writer.write_frame(frames[4])
+        writer.write_frame(frames[5])  # not reached: the signal lands once frame 4 is written
+    assert len(calls) == 5
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = list(iter_frames(path))
+    assert len(got) == 5
+    for g, w in zip(got, frames[:5], strict=True):
         assert_same_frame(g, w)
 
 

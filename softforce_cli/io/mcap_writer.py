@@ -142,8 +142,9 @@ class RecordingWriter:
     def write_frame(self, frame: RgbdFrame) -> None:
         """Append one frame: optional actuation and markers, camera_info, depth, then colour.
 
-        Colour goes last so that a frame cut short by an interruption lacks its colour image,
-        and readers skip it as incomplete.
+        SIGINT and SIGTERM are held while the frame is written, so Ctrl-C ends a recording
+        between frames. Colour goes last so that a frame cut short by a hard crash lacks its
+        colour image, and readers skip it as incomplete.
         """
         if self._closed:
             raise RuntimeError(f"the recording {self.path} is already closed")
@@ -162,19 +163,20 @@ class RecordingWriter:
         messages.append((fmt.CAMERA_INFO_TOPIC, fmt.encode_camera_info(frame.intrinsics, time_ns)))
         messages.append((fmt.DEPTH_TOPIC, fmt.encode_depth(frame.depth_mm, time_ns)))
         messages.append((fmt.COLOR_TOPIC, fmt.encode_color(frame.color, time_ns)))
-        for topic, data in messages:
-            if topic not in self._channels:  # optional topics appear with their first message
-                self._channels[topic] = _register_json_channel(self._writer, topic)
-            self._writer.add_message(
-                channel_id=self._channels[topic],
-                log_time=time_ns,
-                publish_time=time_ns,
-                sequence=self.frames_written,
-                data=data,
-            )
-        self._writer.flush()
-        self._last_time_ns = time_ns
-        self.frames_written += 1
+        with _signals_held():  # a Ctrl-C lands between frames, never inside one
+            for topic, data in messages:
+                if topic not in self._channels:  # optional topics appear with their first one
+                    self._channels[topic] = _register_json_channel(self._writer, topic)
+                self._writer.add_message(
+                    channel_id=self._channels[topic],
+                    log_time=time_ns,
+                    publish_time=time_ns,
+                    sequence=self.frames_written,
+                    data=data,
+                )
+            self._writer.flush()
+            self._last_time_ns = time_ns
+            self.frames_written += 1
 
     def close(self) -> None:
         """Finish the MCAP and rename it onto the target path."""

@@ -273,14 +273,6 @@ def _frames(
             markers_cam.shape
         )
         time_ns = round(index * scenario.frame_interval_s * 1e9)
-        yield RgbdFrame(
-            time_ns=time_ns,
-            color=color,
-            depth_mm=depth,
-            intrinsics=intrinsics,
-            actuation=Actuation(names, control, np.array(frame.actuation, dtype=float)),
-            markers=Markers(robot.marker_ids, observed) if scenario.publish_markers else None,
-        )
         record = _truth_frame(index, time_ns, robot, frame.actuation, state, markers_robot,
                               markers_cam, observed)
         if scenario.effects:
@@ -289,7 +281,17 @@ def _frames(
                 "hold_s": round(context.hold_s, 9),
                 "modulus_factor": round(modulus, 9),
             }
+        # the truth goes in before the frame is handed out: a Ctrl-C after the writer has
+        # taken the frame must find its truth (run_simulation keeps as many as were written)
         truth_frames.append(record)
+        yield RgbdFrame(
+            time_ns=time_ns,
+            color=color,
+            depth_mm=depth,
+            intrinsics=intrinsics,
+            actuation=Actuation(names, control, np.array(frame.actuation, dtype=float)),
+            markers=Markers(robot.marker_ids, observed) if scenario.publish_markers else None,
+        )
         if progress is not None:
             progress(index + 1, scenario.frame_count)
 
