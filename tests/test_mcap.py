@@ -254,6 +254,15 @@ def test_interruption_inside_a_frame_drops_only_that_frame(tmp_path):
 
 def test_a_signal_inside_a_frame_lands_after_it(tmp_path):
     """A real SIGINT between two messages of frame 4 waits until frame 4 is whole."""
+    # Python's own handler, which a process started in the background (SIGINT ignored) lacks
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        _interrupt_inside_frame_4(tmp_path)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _interrupt_inside_frame_4(tmp_path) -> None:
     frames = make_frames(6)
     path = tmp_path / "held.mcap"
     with pytest.raises(KeyboardInterrupt), RecordingWriter(path) as writer:
