@@ -19,7 +19,7 @@ from softforce_cli.diagnosis.selection import (
     worth_refitting,
 )
 from softforce_cli.diagnosis.sensitivities import ColumnSet, column_set, state_columns
-from softforce_cli.diagnosis.solves import SETTINGS, StateSolutions
+from softforce_cli.diagnosis.solves import SETTINGS, SolveCache, StateSolutions, solve_states
 from softforce_cli.diagnosis.states import States, group_states, trajectory_segments
 from softforce_cli.fem.compliance import linearize
 from softforce_cli.fem.statics import solve_equilibrium
@@ -245,3 +245,22 @@ def test_diagnosis_solves_do_not_stop_at_a_start_whose_imbalance_is_spread_thin(
     assert np.abs(exact.positions_mm - nominal.positions_mm).max() > 1.5
     np.testing.assert_allclose(solved.positions_mm, exact.positions_mm, atol=1e-3)
 
+
+
+def test_law_blend_column_is_the_exact_change_to_the_other_law(tmp_path):
+    """The blend's column is a secant, not a tangent (diagnosis.solves): at every state the
+    other law's equilibrium minus the file's, as a direct solve from rest finds them. A
+    P2 beam with the small-strain linear law, bent by its cables."""
+    path = write_beam(tmp_path)
+    path.write_text(path.read_text().replace('law = "corotational"', 'law = "linear"'))
+    robot = load_robot(path)
+    actuation = np.array([[0.0, 0.0], [5.0, 3.0]])
+    solutions = solve_states(robot, actuation, SolveCache(None), column_set(robot))
+    other = fe_model_with_effects(robot, (make_effect("material_nonlinearity", blend=1.0),))
+    blend = solutions.column_set.index("blend")
+    for s, inputs in enumerate(actuation):
+        switched = solve_equilibrium(other, robot.cable_inputs(inputs)).positions_mm
+        nominal = solve_equilibrium(robot.nominal_fe_model, robot.cable_inputs(inputs))
+        expected = switched - nominal.positions_mm
+        assert np.abs(expected).max() > 0.05  # the laws differ on this beam
+        assert np.abs(solutions.columns[s, blend] - expected).max() < 1e-3

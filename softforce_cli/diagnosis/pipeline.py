@@ -26,7 +26,6 @@ from softforce_cli.diagnosis.refit import ExactModel, Refit, refit
 from softforce_cli.diagnosis.residuals import Field, measure
 from softforce_cli.diagnosis.selection import (
     UNEXPLAINED_MM,
-    Z_ACCEPT,
     clear_improvement,
     confidence_intervals,
     effective_sample_size,
@@ -50,6 +49,9 @@ REFIT_COUNT = 1
 # Further candidates refitted when none of those was accepted and a structured residual
 # remains (before the verdict `unexplained`).
 FALLBACK_REFITS = 2
+# ... among those whose screened held-out gain is this many standard errors above zero: a
+# gain carried by one segment alone reaches at most 1 (selection, rule 1).
+FALLBACK_Z = 1.0
 # Candidates tried as the second effect of forward selection.
 SECOND_CANDIDATES = 3
 # Regions whose RMS systematic residual exceeds the whole body's by this factor hold it.
@@ -203,19 +205,23 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
     if not _refit(result, exact, best, nominal, segments, floor, n_eff, frames, report,
                   stop_requested):
         return result
-    if (not any(f.accepted for f in result.finals)
+    if (not any(_names(f, relative_nominal, floor) for f in result.finals)
             and _structured(nominal.rms(), relative_nominal, floor)):
-        # still heading for `unexplained`: the refit failed or fell short (a body 30% softer
-        # screens behind gravity, whose exact solve does not converge, at 0.18 of the excess):
-        # the exact model judges the next candidates that generalise (rule 1) before
+        # still heading for `unexplained`: the refit failed or fell short of a name (a body
+        # 30% softer screens behind a tilted, heavier gravity that the exact model accepts
+        # but takes only half of the excess with, and its own first-order column generalises
+        # with a gain of 1.37 standard errors): the exact model judges the next candidates
+        # whose screened gain rests on more than one segment (FALLBACK_Z) before
         tried = {s.key for s in best}
-        more = [s for s in agreeing if s.key not in tried and s.heldout.gain_z() > Z_ACCEPT
+        more = [s for s in agreeing if s.key not in tried and s.heldout.gain_z() > FALLBACK_Z
                 ][:FALLBACK_REFITS]
         if not _refit(result, exact, more, nominal, segments, floor, n_eff, frames, report,
                       stop_requested):
             return result
     result.finals.sort(key=lambda f: -excess_share(f.heldout, floor))
-    accepted = [f for f in result.finals if f.accepted]
+    # one that explains the mismatch before one that fits part of it (the verdict's rule)
+    accepted = sorted((f for f in result.finals if f.accepted),
+                      key=lambda f: not _names(f, relative_nominal, floor))
     if accepted:
         result.stage = "second effect"
         result.selected = [accepted[0]]
@@ -246,6 +252,13 @@ def _refit(result: Diagnosis, exact: ExactModel, candidates: list[Screened], nom
             result.not_refitted.append(f"{screened.candidate.label}: {error}")
     report("refit", len(candidates), len(candidates))
     return True
+
+
+def _names(final: Final, relative_nominal_mm: float, floor: float) -> bool:
+    """Whether a refitted candidate would be named: accepted and, relative to the static
+    baseline, explaining the mismatch rather than fitting part of it (_verdict)."""
+    return final.accepted and (not final.screened.relative or explains(
+        relative_nominal_mm, final.heldout.rms_after_mm, floor))
 
 
 def _structured(absolute_mm: float, relative_mm: float, floor: float) -> bool:

@@ -11,7 +11,8 @@ One factorisation of K per state serves every column:
 - gravity: b = the nodal weights' change per unit of scale and per degree of tilt;
 - stiffness_scale: every law is linear in its modulus, b = -g(x) per unit of scale;
   regional_stiffness: the same over one region's elements;
-- material_nonlinearity: the energy is blended linearly, b = g_law(x) - g_other(x);
+- material_nonlinearity: the energy is blended linearly, b = g_law(x) - g_other(x) (which
+  diagnosis.solves replaces by the exact change to blend 1 wherever the other law solves);
 - compliant_base, in compliance c = 1/k: the clamped nodes move rigidly as the springs
   allow under the clamp's net reaction (the soft-clamp limit, _base_give), which moves the
   free nodes through the elements and shortens the cables by H d;
