@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 
 from softforce_cli.calibration.rigid import RigidTransform
+from softforce_cli.diagnosis.background import Table
 from softforce_cli.diagnosis.fitting import Candidate, HeldOut, fit_values, held_out
 from softforce_cli.diagnosis.hypotheses import Hypothesis, Inputs
+from softforce_cli.diagnosis.pipeline import Screened, fallback_candidates
 from softforce_cli.diagnosis.refit import ExactModel
 from softforce_cli.diagnosis.residuals import Field, point_residuals
 from softforce_cli.diagnosis.selection import (
@@ -264,3 +266,34 @@ def test_law_blend_column_is_the_exact_change_to_the_other_law(tmp_path):
         expected = switched - nominal.positions_mm
         assert np.abs(expected).max() > 0.05  # the laws differ on this beam
         assert np.abs(solutions.columns[s, blend] - expected).max() < 1e-3
+
+
+def _screened(name: str, target: str | None, gains: np.ndarray, relative: bool = True,
+              table_misfit_mm: float | None = 0.4) -> Screened:
+    hypothesis = Hypothesis(name, target, ("scale",), np.ones(1), np.zeros(1), np.full(1, 3.0))
+    before = np.full(len(gains), 0.64)
+    held = HeldOut(0.8, float(np.sqrt(np.mean(before - gains))), before, before - gains)
+    return Screened(Candidate((hypothesis,)), np.ones(1), held, relative, np.ones((1, 2)),
+                    table_misfit_mm)
+
+
+def test_fallback_refits_other_targets_that_generalise_and_agree_with_the_table():
+    """Before answering `unexplained` the refit takes the next candidates on any target
+    (regional_south_2: the south arm screens just behind the north arm that fits part of
+    it), not those whose gain rests on one segment, nor those that move the table where the
+    camera does not show it, nor those already refitted."""
+    spread = np.array([0.30, 0.25, 0.28, 0.32, 0.27, 0.24, 0.31, 0.26])
+    one_segment = np.full(8, -0.01)  # a large gain in one segment, small losses elsewhere
+    one_segment[2] = 2.0
+    north = _screened("regional_stiffness", "north", spread)
+    screened = [north,
+                _screened("regional_stiffness", "south", 0.9 * spread),
+                _screened("gravity", None, one_segment),
+                _screened("extrinsic_offset", None, 0.8 * spread, False, table_misfit_mm=5.0),
+                _screened("stiffness_scale", None, 0.5 * spread),
+                _screened("regional_stiffness", "west", 0.4 * spread)]
+    table = Table(np.zeros((25, 3)), np.zeros(25))  # tolerance 1 mm
+    assert screened[2].heldout.gain_z() < 1.0 < screened[5].heldout.gain_z()
+    chosen = fallback_candidates(screened, [north], table)
+    assert [s.candidate.label for s in chosen] == ["regional_stiffness[south]",
+                                                   "stiffness_scale"]

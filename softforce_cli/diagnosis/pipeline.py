@@ -207,14 +207,10 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
         return result
     if (not any(_names(f, relative_nominal, floor) for f in result.finals)
             and _structured(nominal.rms(), relative_nominal, floor)):
-        # still heading for `unexplained`: the refit failed or fell short of a name (a body
-        # 30% softer screens behind a tilted, heavier gravity that the exact model accepts
-        # but takes only half of the excess with, and its own first-order column generalises
-        # with a gain of 1.37 standard errors): the exact model judges the next candidates
-        # whose screened gain rests on more than one segment (FALLBACK_Z) before
-        tried = {s.key for s in best}
-        more = [s for s in agreeing if s.key not in tried and s.heldout.gain_z() > FALLBACK_Z
-                ][:FALLBACK_REFITS]
+        # still heading for `unexplained`: the refit failed or fell short of a name (a
+        # softer north arm fits part of a south arm twice as stiff, which screens just
+        # behind it and is named once refitted): the exact model judges the next few
+        more = fallback_candidates(result.screened, best, table)
         if not _refit(result, exact, more, nominal, segments, floor, n_eff, frames, report,
                       stop_requested):
             return result
@@ -252,6 +248,18 @@ def _refit(result: Diagnosis, exact: ExactModel, candidates: list[Screened], nom
             result.not_refitted.append(f"{screened.candidate.label}: {error}")
     report("refit", len(candidates), len(candidates))
     return True
+
+
+def fallback_candidates(screened: list[Screened], tried: list[Screened],
+                        table: Table | None) -> list[Screened]:
+    """The next FALLBACK_REFITS of `screened` (in its order) not in `tried`, on any target
+    (a south arm twice as stiff screens just behind a softer north arm, which fits part of
+    it), whose screened gain rests on more than one segment (FALLBACK_Z) and which put the
+    table where the camera shows it."""
+    done = {(s.candidate.label, s.relative) for s in tried}
+    return [s for s in screened if (s.candidate.label, s.relative) not in done
+            and s.heldout.gain_z() > FALLBACK_Z
+            and _table_agrees(s.table_misfit_mm, table)][:FALLBACK_REFITS]
 
 
 def _names(final: Final, relative_nominal_mm: float, floor: float) -> bool:
