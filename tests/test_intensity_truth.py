@@ -101,9 +101,12 @@ def sense_perfect_observations(document: dict, force_model: str = "axis"
         axes = np.array([object_axes(np.array(c["point_mm"])[None], _probe_points(c))[0]
                          for c in frame["contacts"]]).reshape(-1, 3)
         for _ in range(1 if sensor.tare_left else HOLD_FRAMES):
+            taring = sensor.tare_left > 0
             update = sensor.settle(_truth_matches(sensor, truth),
                                    lambda truth=truth: _truth_matches(sensor, truth), nodes,
                                    contact_axes=axes)
+            if taring:
+                sensor.add_tare(update)
         if not frame["contacts"]:
             continue
         estimated = np.array([np.linalg.norm(update.forces_n[g] @ update.columns.directions[g])

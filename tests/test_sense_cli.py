@@ -6,9 +6,15 @@ import csv
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from softforce_cli.calibration.result import read_calibration
+from softforce_cli.estimation.sensing import ForceSensor
+from softforce_cli.estimation.settings import EstimationSettings, SenseSettings
 from softforce_cli.estimation.truth_errors import pose_from_truth
+from softforce_cli.io.mcap_reader import iter_frames
+from softforce_cli.model.robot import load_robot
 from tests.cli_runner import assert_one_line_error, softforce
 from tests.conftest import ROOT, SAMPLE_ROBOT
 
@@ -162,3 +168,24 @@ def test_a_frame_whose_fit_diverged_is_skipped_as_lost(probes_run, tmp_path):
     refused = softforce("sense", PROBES, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
                         "-o", tmp_path / "out2", "--settings", settings)
     assert_one_line_error(refused, "lost_fit_mm")
+
+
+def test_a_lost_frame_does_not_join_the_tare(probes_run):
+    """Taring on the probes' first three frames with a 1 micrometre lost threshold: frame 0
+    is tared, frames 1 and 2 are lost (the P1 model's fit grows) and leave the tare as it
+    was: two tare frames are still to come, and the offsets are frame 0's alone."""
+    _, _, calibration = probes_run
+    robot = load_robot(SAMPLE_ROBOT)
+    frames = list(iter_frames(PROBES))[:4]
+
+    def sensor(lost_fit_mm: float) -> ForceSensor:
+        settings = SenseSettings(estimation=EstimationSettings(lost_fit_mm=lost_fit_mm))
+        return ForceSensor(robot, read_calibration(calibration).robot_from_camera,
+                           frames[0].actuation.values, settings, tare_frames=3)
+
+    strict, lenient = sensor(0.001), sensor(100.0)
+    statuses = [strict.process(i, frame).status for i, frame in enumerate(frames[1:4])]
+    lenient.process(0, frames[1])
+    assert statuses == ["tare", "lost", "lost"]
+    assert strict.tare_left == 2
+    np.testing.assert_array_equal(strict.tare_offsets_mm, lenient.tare_offsets_mm)

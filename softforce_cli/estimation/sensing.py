@@ -197,6 +197,8 @@ class ForceSensor:
                 self.linear = None
             return FrameEstimate(index, time_s, "lost", timings_ms=timings, **counts,
                                  fit_rms_mm=fit_rms_mm)
+        if taring:  # a frame whose fit diverged (lost) does not join the tare
+            self.add_tare(outcome)
         status = "tare" if taring else "ok"
         contacts = () if taring else self._contacts(outcome)
         clock.lap("update")
@@ -218,9 +220,10 @@ class ForceSensor:
         updates_per_frame times, stopping once an update moved no feature point more than
         rematch_mm. Contact forces act at the mesh nodes contact_nodes (c,) (or at the known
         contact), with force_model "axis" along contact_axes (c, 3) where not NaN (the
-        pushing object's axis); while taring there are none, and the frame's offsets join
-        the tare. Returns the last update, or None when too few features match (the
-        configuration is then that of the updates made)."""
+        pushing object's axis); while taring there are none, and the caller adds the frame
+        to the tare (add_tare) once its fit is judged. Returns the
+        last update, or None when too few features match (the configuration is then that of
+        the updates made)."""
         clock = clock or _Clock({})
         taring = self.tare_left > 0
         outcome: Update | None = None
@@ -237,8 +240,6 @@ class ForceSensor:
                                    axis=1).max(initial=0.0)
             if moved <= self.settings.estimation.rematch_mm:
                 break  # matching again would find the same points: the frame is done
-        if taring and outcome is not None:
-            self._add_tare(outcome)
         return outcome
 
     def _vision(self, frame: RgbdFrame) -> VisionResult:
@@ -292,7 +293,9 @@ class ForceSensor:
         return np.divide(self._tare_sum, self._tare_count, out=np.zeros_like(self._tare_sum),
                          where=self._tare_count > 0)
 
-    def _add_tare(self, update: Update) -> None:
+    def add_tare(self, update: Update) -> None:
+        """Join a tare frame's last update to the tare: its features' observed-minus-model
+        normal offsets at the settled configuration."""
         matched = update.matches.matched
         positions, normals = self.feature_geometry()
         model = np.einsum("pi,pi->p", positions, normals)
