@@ -46,8 +46,8 @@ from softforce_cli.model.robot import Robot
 
 # Accepted candidates refitted on the exact model (two FE solves per affected state each).
 REFIT_COUNT = 1
-# Further candidates refitted when none of those was accepted and a structured residual
-# remains (before the verdict `unexplained`).
+# Further candidates refitted when none of those is named (rejected, or accepted as a
+# partial fit) and a structured residual remains (before the verdict `unexplained`).
 FALLBACK_REFITS = 2
 # ... among those whose screened held-out gain is this many standard errors above zero: a
 # gain carried by one segment alone reaches at most 1 (selection, rule 1).

@@ -221,9 +221,8 @@ class ForceSensor:
         rematch_mm. Contact forces act at the mesh nodes contact_nodes (c,) (or at the known
         contact), with force_model "axis" along contact_axes (c, 3) where not NaN (the
         pushing object's axis); while taring there are none, and the caller adds the frame
-        to the tare (add_tare) once its fit is judged. Returns the
-        last update, or None when too few features match (the configuration is then that of
-        the updates made)."""
+        to the tare (add_tare) once its fit is judged. Returns the last update, or None when
+        too few features match (the configuration is then that of the updates made)."""
         clock = clock or _Clock({})
         taring = self.tare_left > 0
         outcome: Update | None = None
