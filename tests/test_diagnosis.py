@@ -11,6 +11,7 @@ from softforce_cli.diagnosis.fitting import Candidate, HeldOut, fit_values, held
 from softforce_cli.diagnosis.hypotheses import Hypothesis, Inputs
 from softforce_cli.diagnosis.pipeline import Screened, fallback_candidates
 from softforce_cli.diagnosis.refit import ExactModel
+from softforce_cli.diagnosis.report import group_reason
 from softforce_cli.diagnosis.residuals import Field, point_residuals
 from softforce_cli.diagnosis.selection import (
     clear_improvement,
@@ -297,3 +298,12 @@ def test_fallback_refits_other_targets_that_generalise_and_agree_with_the_table(
     chosen = fallback_candidates(screened, [north], table)
     assert [s.candidate.label for s in chosen] == ["regional_stiffness[south]",
                                                    "stiffness_scale"]
+
+
+def test_a_group_says_why_its_effects_are_one_signature():
+    """The summary's group line gives the known reason for a known pair, the trajectory for
+    two targets of one effect, and the statistical reason otherwise."""
+    assert "g / E" in group_reason(["gravity", "stiffness_scale"])
+    assert "regions or cables together" in group_reason(
+        ["regional_stiffness[south]", "regional_stiffness[north]"])
+    assert "2 standard errors" in group_reason(["cable_slack[north]", "gravity"])

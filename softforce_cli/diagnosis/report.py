@@ -22,6 +22,18 @@ FORMAT = "softforce.diagnosis"
 INFINITE = 1e12
 MODES = {True: "relative to a static baseline per node", False: "absolute"}
 
+# Why two effects of a group leave one signature, for the pairs known to (docs/diagnosis.md);
+# keyed by effect names without targets.
+GROUP_REASONS: dict[frozenset[str], str] = {
+    frozenset({"gravity", "stiffness_scale"}): "with displacement-controlled cables a "
+    "heavier body and a softer one sag alike: the shape depends on g / E",
+    frozenset({"compliant_base", "stiffness_scale"}): "a body that gives at its clamp and a "
+    "softer body both sink further under their weight, by shapes this recording does not "
+    "tell apart",
+    frozenset({"depth_bias", "extrinsic_offset"}): "a depth scale and a camera moved along "
+    "its axis shift the robot alike at its depth",
+}
+
 
 def _finite(value: float) -> float | None:
     return round(float(value), 6) if math.isfinite(value) else None
@@ -144,7 +156,7 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
                          f"{evidence['heldout_relative_final_mm']:.2f} mm, noise floor "
                          f"{diagnosis.noise_floor_mm:.2f} mm): physics outside the library?")
     for group in diagnosis.groups:
-        lines.append(f"this data cannot tell apart: {', '.join(group)}")
+        lines.append(f"this data cannot tell apart: {', '.join(group)} ({group_reason(group)})")
     if (evidence.get("prediction_element") != evidence.get("element")
             and evidence["rms_given_element_mm"] > 1.5 * evidence["rms_nominal_mm"]):
         lines.append(f"the robot's {evidence['element']} mesh alone leaves "
@@ -175,3 +187,15 @@ def fitted_robot_toml(robot_file: Path, diagnosis: Diagnosis, output_dir: Path) 
     text = re.sub(r"(?ms)^\[\[effect\]\]\n.*?(?=^\[|\Z)", "", text)
     header = f"\n# fitted by softforce diagnose {__version__} (diagnosis.json)\n"
     return text.rstrip("\n") + "\n" + header + "\n".join(effect_toml(e) for e in effects)
+
+
+def group_reason(group: list[str]) -> str:
+    """Why the effects of a group (labels) are one signature on this recording."""
+    names = frozenset(label.split("[")[0] for label in group)
+    if len(names) == 1:
+        return ("the recording loads these regions or cables together: a trajectory that "
+                "moves them apart would separate them")
+    known = [reason for pair, reason in GROUP_REASONS.items() if pair <= names]
+    return "; ".join(known) if known else (
+        "their held-out errors per trajectory segment differ by less than 2 standard "
+        "errors: a recording that loads them differently would separate them")
