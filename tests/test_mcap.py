@@ -226,25 +226,35 @@ def test_interruption_before_any_frame_leaves_existing_file(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["old.mcap"]
 
 
+def _write_with_frame_4_interrupted(writer: RecordingWriter, frames: list, interrupt,
+                                    calls: list) -> None:
+    """Write frames 0-3, then frame 4 with interrupt() called before its third message
+    (camera_info: actuation and markers written); `calls` receives every message tried."""
+    for frame in frames[:4]:
+        writer.write_frame(frame)
+    add_message = writer._writer.add_message
+
+    def add(**kwargs):
+        calls.append(kwargs)
+        if len(calls) == 3:
+            interrupt()
+        add_message(**kwargs)
+
+    writer._writer.add_message = add
+    writer.write_frame(frames[4])
+
+
+def _crash() -> None:
+    raise KeyboardInterrupt
+
+
 def test_interruption_inside_a_frame_drops_only_that_frame(tmp_path):
     """An interruption raised between two messages of frame 4 (as a crash would cut it):
     frames 0-3 stay whole, frame 4 is skipped."""
     frames = make_frames(6)
     path = tmp_path / "mid.mcap"
     with pytest.raises(KeyboardInterrupt), RecordingWriter(path) as writer:
-        for frame in frames[:4]:
-            writer.write_frame(frame)
-        add_message = writer._writer.add_message
-        calls = []
-
-        def interrupted_add(**kwargs):
-            calls.append(kwargs)
-            if len(calls) == 3:  # actuation, markers written; camera_info interrupted
-                raise KeyboardInterrupt
-            add_message(**kwargs)
-
-        writer._writer.add_message = interrupted_add
-        writer.write_frame(frames[4])
+        _write_with_frame_4_interrupted(writer, frames, _crash, [])
     assert read_summary(path).frame_count == 4
     with pytest.warns(RecordingWarning, match="skipped 1 incomplete"):
         got = list(iter_frames(path))
@@ -256,30 +266,16 @@ def test_a_signal_inside_a_frame_lands_after_it(tmp_path):
     """A real SIGINT between two messages of frame 4 waits until frame 4 is whole."""
     # Python's own handler, which a process started in the background (SIGINT ignored) lacks
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        _interrupt_inside_frame_4(tmp_path)
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
-def _interrupt_inside_frame_4(tmp_path) -> None:
     frames = make_frames(6)
     path = tmp_path / "held.mcap"
-    with pytest.raises(KeyboardInterrupt), RecordingWriter(path) as writer:
-        for frame in frames[:4]:
-            writer.write_frame(frame)
-        add_message = writer._writer.add_message
-        calls = []
-
-        def signalled_add(**kwargs):
-            calls.append(kwargs)
-            if len(calls) == 3:
-                signal.raise_signal(signal.SIGINT)
-            add_message(**kwargs)
-
-        writer._writer.add_message = signalled_add
-        writer.write_frame(frames[4])
-        writer.write_frame(frames[5])  # not reached: the signal lands once frame 4 is written
+    calls: list = []
+    try:
+        with pytest.raises(KeyboardInterrupt), RecordingWriter(path) as writer:
+            _write_with_frame_4_interrupted(
+                writer, frames, lambda: signal.raise_signal(signal.SIGINT), calls)
+            writer.write_frame(frames[5])  # not reached: the signal lands once 4 is written
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert len(calls) == 5
     with warnings.catch_warnings():
         warnings.simplefilter("error")

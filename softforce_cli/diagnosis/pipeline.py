@@ -367,8 +367,7 @@ def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
                       else relative_before)
     structured = _structured(after, relative_after, floor)
     fitted = result.selected
-    partial = (last is not None and last.screened.relative
-               and not explains(relative_before, relative_after, floor))
+    partial = last is not None and not _names(last, relative_before, floor)
     if partial:
         # fitted, accepted, but most of what it fits is something else: not a name to give
         result.partial = [chosen.candidate.label for chosen in fitted]
