@@ -50,10 +50,11 @@ SETTINGS = SolverSettings(step_tolerance_mm=1e-2, force_tolerance_n=0.0)
 CACHE_VERSION = 2
 # Laws whose blend column is the secant to the other law (one more solve per state) instead
 # of the tangent. The small-strain linear law's spurious stresses under rotation make its
-# tangent correlate -0.23 with the exact change to Neo-Hookean at the Diamond's all-cables
-# state, and a file with that law screened at blend 0 (named a softer or heavier body); the
-# corotational law's tangent correlates 0.999 with its exact change (north cable at 6 mm,
-# 0.8 mm RMS), so its 28-state diagnosis is spared 28 solves (about 9 s each here).
+# tangent correlate -0.46 with the exact change to Neo-Hookean under the Diamond's north
+# cable at 6 mm, and a file with that law screened at blend 0 (named a softer or heavier
+# body); the corotational law's tangent correlates 0.999 with its exact change there (0.8 mm
+# RMS), so its 28-state diagnosis is spared 28 solves, about 9 s each here
+# (benchmarks/law_blend_check.py).
 SECANT_LAWS = frozenset({"linear"})
 # Bump when what the cached sensitivity columns mean changes (2: compliant_base's rigid give;
 # 3: the law blend's secant).
