@@ -11,7 +11,11 @@ a rerun continues where the last stopped. `--table` prints the markdown table of
 (docs/diagnosis.md).
 
     .venv/bin/python benchmarks/study_diagnosis.py [--cases NAME,...] [--seeds 3]
-        [--first-seed 1] [--redo] [--recordings-only] [--table]
+        [--first-seed 1] [--redo] [--recordings-only] [--table] [--markers]
+
+--markers: the recordings publish the robot's nine markers too (/markers, 0.5 mm noise), as
+a setup calibrated from markers would; their cases are kept as NAME+markers. The sensor's
+images are the same as without (simulate draws the markers' noise either way).
 """
 
 from __future__ import annotations
@@ -90,10 +94,13 @@ CASES: dict[str, tuple] = {
 LAW_OF_ROBOT = {"material_linear": "linear"}
 # A 40 g mass hidden on the north arm's elbow (outside the library: a regional load).
 HIDDEN_LOAD = '[{ kind = "weight", point_mm = [0.0, 97.0, 40.0], force_n = 0.4 }]'
+# A case diagnosed on recordings that publish markers is named with this suffix.
+MARKED = "+markers"
+MARKERS_TOML = "[markers]\npublish = true\nsigma_mm = 0.5\n\n"
 
 
 def scenario_text(case: str, seed: int) -> str:
-    body = CASES[case][2]
+    body = CASES[case.removesuffix(MARKED)][2]
     robot = os.path.relpath(TRUTH_ROBOT, FOLDER)
     load = f"load = {HIDDEN_LOAD}\n" if body == "load" else ""
     frames = "\n".join(f"[[frame]]\nactuation = {[float(v) for v in a]}\nrepeat = {n}\n{load}"
@@ -101,7 +108,7 @@ def scenario_text(case: str, seed: int) -> str:
     effect = f"[[effect]]\n{body}\n\n" if body and body != "load" else ""
     return (f'name = "{case}"\nrobot = "{robot}"\nlaw = "neo-hookean"\nseed = {seed}\n'
             "frame_interval_s = 0.5\n\n[camera]\nwidth = 424\nheight = 240\n\n"
-            f"{effect}{frames}")
+            f"{MARKERS_TOML if case.endswith(MARKED) else ''}{effect}{frames}")
 
 
 def softforce(*args) -> subprocess.CompletedProcess:
@@ -150,11 +157,13 @@ def ensure_recording(case: str, seed: int, recording: Path) -> str | None:
 def recorded_case(case: str) -> str:
     """The case whose recording a case reads: a case with its own robot file has the clean
     case's truth."""
-    return "clean" if case in LAW_OF_ROBOT else case
+    plain = case.removesuffix(MARKED)
+    return ("clean" if plain in LAW_OF_ROBOT else plain) + case[len(plain):]
 
 
 def robot_file(case: str) -> Path:
     """The robot file a case is diagnosed with: COARSE, or a copy with another law."""
+    case = case.removesuffix(MARKED)
     if case not in LAW_OF_ROBOT:
         return COARSE
     text = COARSE.read_text()
@@ -184,7 +193,7 @@ def run_case(case: str, seed: int) -> dict:
     if run.returncode != 0:
         return {"case": case, "seed": seed, "error": run.stderr.strip()[-300:]}
     document = json.loads((output / "diagnosis.json").read_text())
-    expected, target, _, parameter, true_value = CASES[case]
+    expected, target, _, parameter, true_value = CASES[case.removesuffix(MARKED)]
     first = document["effects"][0] if document["effects"] else {}
     fitted = first.get("parameters", {}).get(parameter, {}).get("value") if parameter else None
     return {
@@ -195,7 +204,12 @@ def run_case(case: str, seed: int) -> dict:
         "parameter": parameter, "true": true_value, "fitted": fitted,
         "heldout_before_mm": first.get("heldout_rms_before_mm"),
         "heldout_after_mm": first.get("heldout_rms_after_mm"),
-        "noise_floor_mm": document["noise_floor_mm"],
+        # the floor of the residuals the first effect was judged on (the markers' for a
+        # camera effect only they see)
+        "noise_floor_mm": (document["evidence"]["markers"]["noise_floor_mm"]
+                           if first.get("evidence", {}).get("channel") == "markers"
+                           else document["noise_floor_mm"]),
+        "channel": first.get("evidence", {}).get("channel", "clouds"),
         "regions": document["location"]["regions"], "seconds": round(elapsed, 1),
     }
 
@@ -230,6 +244,8 @@ def main() -> None:
     parser.add_argument("--recordings-only", action="store_true",
                         help="only simulate the missing recordings (the long part), one by one")
     parser.add_argument("--table", action="store_true", help="print the table of what ran")
+    parser.add_argument("--markers", action="store_true",
+                        help="recordings with the markers published (cases NAME+markers)")
     args = parser.parse_args()
     FOLDER.mkdir(parents=True, exist_ok=True)
     rows = read_results()
@@ -237,6 +253,10 @@ def main() -> None:
         print(table([rows[key] for key in sorted(rows, key=_order)]))
         return
     cases = args.cases.split(",") if args.cases else list(CASES)
+    if unknown := [c for c in cases if c not in CASES]:
+        raise SystemExit(f"unknown case(s): {', '.join(unknown)}")
+    if args.markers:
+        cases = [c + MARKED for c in cases]
     for seed in range(args.first_seed, args.seeds + 1):
         for case in cases:
             if args.recordings_only:
@@ -264,7 +284,9 @@ def read_results() -> dict[tuple[str, int], dict]:
 def _order(key: tuple[str, int]) -> tuple[int, int]:
     """Table order: by seed, then as the cases are listed."""
     case, seed = key
-    return seed, list(CASES).index(case) if case in CASES else len(CASES)
+    plain = case.removesuffix(MARKED)
+    order = list(CASES).index(plain) if plain in CASES else len(CASES)
+    return seed, 2 * order + (plain != case)
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ from softforce_cli.calibration.rigid import RigidTransform
 from softforce_cli.diagnosis.background import Table
 from softforce_cli.diagnosis.fitting import Candidate, HeldOut, fit_values, held_out
 from softforce_cli.diagnosis.hypotheses import Hypothesis, Inputs
-from softforce_cli.diagnosis.pipeline import Screened, fallback_candidates
+from softforce_cli.diagnosis.pipeline import Screened, camera_seen_by_markers, fallback_candidates
 from softforce_cli.diagnosis.refit import ExactModel
 from softforce_cli.diagnosis.report import group_reason
 from softforce_cli.diagnosis.residuals import Field, point_residuals
@@ -307,3 +307,21 @@ def test_a_group_says_why_its_effects_are_one_signature():
     assert "regions or cables together" in group_reason(
         ["regional_stiffness[south]", "regional_stiffness[north]"])
     assert "2 standard errors" in group_reason(["cable_slack[north]", "gravity"])
+
+
+def test_a_camera_seen_by_the_markers_must_pass_their_rules_and_agree_with_table_and_clouds():
+    """Judged on the markers (diagnosis.markers): the best camera effect that passes rules
+    1-3 against the markers' floor, puts the table where it is seen and leaves the clouds
+    explained; none when the clouds object."""
+    spread = np.array([0.30, 0.25, 0.28, 0.32, 0.27, 0.24, 0.31, 0.26])
+    table = Table(np.zeros((25, 3)), np.zeros(25))  # tolerance 1 mm
+    tilted = _screened("extrinsic_offset", None, 1.2 * spread, False, table_misfit_mm=3.0)
+    small = _screened("depth_bias", None, 0.05 * spread, False)  # explains too little
+    turned = _screened("extrinsic_offset", None, spread, False)
+    floor = 0.5
+    assert clear_improvement(tilted.heldout, floor) and not clear_improvement(small.heldout,
+                                                                                floor)
+    assert camera_seen_by_markers([tilted, small, turned], floor, table,
+                                  lambda s: True) is turned
+    assert camera_seen_by_markers([tilted, small, turned], floor, table,
+                                  lambda s: s is not turned) is None

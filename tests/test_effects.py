@@ -346,14 +346,20 @@ def test_simulate_conceals_effects_in_the_truth_only(tmp_path):
 def test_simulate_scales_the_depth_by_a_concealed_bias(tmp_path):
     frames = "[[frame]]\nactuation = [0.0, 0.0, 0.0, 0.0]\n"
     bias = effect_toml(make_effect("depth_bias", scale=0.05))
-    depths = []
+    markers = "[markers]\npublish = true\n"  # noise-free observations
+    depths, seen = [], []
     for name, effects in (("plain", ""), ("biased", bias)):
-        result = simulate(_scenario(tmp_path, effects, frames, name), tmp_path / f"{name}.mcap")
-        depths.append(next(iter(iter_frames(result.recording))).depth_mm.astype(float))
+        result = simulate(_scenario(tmp_path, f"{markers}{effects}", frames, name),
+                          tmp_path / f"{name}.mcap")
+        frame = next(iter(iter_frames(result.recording)))
+        depths.append(frame.depth_mm.astype(float))
+        seen.append(frame.markers.positions_mm)
     hit = (depths[0] > 0) & (depths[1] > 0)
     # both depths are rounded to whole mm: 1.05 times the plain one within 0.5 + 1.05 x 0.5
     assert hit.mean() > 0.9
     assert np.abs(depths[1][hit] - 1.05 * depths[0][hit]).max() <= 1.025 + 1e-9
+    # the markers are located in that depth: 5% further along their rays
+    np.testing.assert_allclose(seen[1], 1.05 * seen[0], atol=1e-4)
 
 
 def test_scenario_effect_errors_are_one_line(tmp_path):

@@ -192,6 +192,23 @@ def test_diagnose_folder_report(tmp_path):
     assert list(effects["ci95_hi"]) == [2.4, 1.12]
 
 
+def test_an_effect_judged_on_the_markers_says_so(tmp_path):
+    """A camera effect judged on the markers (docs/diagnosis.md, step 13) has the markers'
+    held-out figures: its label says so wherever the report shows it."""
+    folder = diagnose_folder(tmp_path / "diagnose")
+    turned = {"name": "extrinsic_offset", "parameters": {
+        "rotation_z_deg": {"value": 0.98, "ci95": [0.87, 1.09], "unit": "deg"}},
+        "heldout_rms_before_mm": 0.95, "heldout_rms_after_mm": 0.69,
+        "evidence": {"channel": "markers", "mode": "absolute"}}
+    (folder / "diagnosis.json").write_text(json.dumps({
+        **DIAGNOSIS, "verdict": "extrinsic_offset", "effects": [turned, *DIAGNOSIS["effects"]]}))
+    effects = load_run(folder).diagnose.diagnosis.effects
+    assert [e.label for e in effects] == ["extrinsic_offset [markers]", "cable_slack (north)",
+                                          "stiffness_scale"]
+    report = build_report(load_run(folder), tmp_path / "report")
+    assert "extrinsic_offset [markers]" in report.page.read_text()
+
+
 def test_bad_diagnosis_field_is_one_line(tmp_path):
     folder = diagnose_folder(tmp_path / "diagnose")
     broken = {k: v for k, v in DIAGNOSIS.items() if k != "noise_floor_mm"}

@@ -71,13 +71,15 @@ def _summary(diagnosis) -> None:
                                        if f not in diagnosis.selected]
     rows += [s for s in diagnosis.screened[:6] if s.key not in {f.screened.key for f in rows}]
     for item in rows[:8]:
-        entry = effect_entry(item, floor, item in diagnosis.selected)
+        entry = effect_entry(item, diagnosis.floor_for(item), item in diagnosis.selected)
         shown = [f"{k}={v['value']:.3g}" for k, v in entry["parameters"].items()]
         values = ", ".join(shown[:2]) + (f" (+{len(shown) - 2})" if len(shown) > 2 else "")
         accepted = entry["evidence"]["accepted"]
+        mode = "relative" if "relative" in entry["evidence"]["mode"] else "absolute"
+        if entry["evidence"]["channel"] == "markers":
+            mode += ", markers"
         table.add_row(entry["label"], values, f"{entry['heldout_rms_before_mm']:.3f}",
-                      f"{entry['heldout_rms_after_mm']:.3f}",
-                      "relative" if "relative" in entry["evidence"]["mode"] else "absolute",
+                      f"{entry['heldout_rms_after_mm']:.3f}", mode,
                       "screened" if accepted is None else ("yes" if accepted else "no"))
     stdout.print(table)
     where = diagnosis.location

@@ -1,7 +1,8 @@
 """The whole diagnosis: observations -> states -> one solve and one tangent per state ->
 nominal residuals -> every hypothesis screened on the first-order model (fit and
 leave-one-segment-out) -> the best refitted on the exact model -> forward selection of up to
-two effects -> verdict, groups, location."""
+two effects -> a camera effect only the markers see, when the clouds find nothing -> verdict,
+groups, location."""
 
 from __future__ import annotations
 
@@ -20,7 +21,8 @@ from softforce_cli.diagnosis.fitting import (
     node_offsets,
     shift_jacobian,
 )
-from softforce_cli.diagnosis.hypotheses import ABSOLUTE, hypotheses
+from softforce_cli.diagnosis.hypotheses import ABSOLUTE, Inputs, hypotheses
+from softforce_cli.diagnosis.markers import marker_field, marker_inputs
 from softforce_cli.diagnosis.observations import DiagnosisError, Observations
 from softforce_cli.diagnosis.refit import ExactModel, Refit, refit
 from softforce_cli.diagnosis.residuals import Field, measure
@@ -62,7 +64,8 @@ Stage = Callable[[str, int, int | None], None]
 @dataclass(frozen=True, eq=False)
 class Screened:
     """One candidate on the first-order model: fitted values and held-out error, relative to
-    a static baseline per node (relative) or absolute (hypotheses.ABSOLUTE)."""
+    a static baseline per node (relative) or absolute (hypotheses.ABSOLUTE), on the point
+    clouds' residuals or (a camera effect) on the markers' (`channel`, diagnosis.markers)."""
 
     candidate: Candidate
     values: np.ndarray
@@ -70,6 +73,7 @@ class Screened:
     relative: bool
     ci95: np.ndarray  # (k, 2) from the first-order model's Gauss-Newton covariance
     table_misfit_mm: float | None  # the observed table's height left unexplained
+    channel: str = "clouds"
 
     @property
     def key(self) -> tuple[str, bool]:
@@ -117,12 +121,22 @@ class Diagnosis:
     not_refitted: list[str] = field(default_factory=list)
     # accepted effects that explain too little of the mismatch to be named (selection.explains)
     partial: list[str] = field(default_factory=list)
+    # the markers' residual entries (diagnosis.markers), their floor and the camera effects
+    # screened on them; None / NaN / empty without markers
+    markers: Field | None = None
+    marker_floor_mm: float = float("nan")
+    marker_screened: list[Screened] = field(default_factory=list)
     stage: str = "observations"
     interrupted: bool = False
 
     @property
     def final_field(self) -> Field | None:
         return self.selected[-1].refit.field if self.selected else self.nominal
+
+    def floor_for(self, item: Screened | Final) -> float:
+        """The noise floor (mm) of the channel a candidate was judged on."""
+        screened = item.screened if isinstance(item, Final) else item
+        return self.marker_floor_mm if screened.channel == "markers" else self.noise_floor_mm
 
 
 def diagnose_observations(robot: Robot, observations: Observations, cache: SolveCache,
@@ -182,13 +196,10 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
             result.interrupted = True
             return result
         report("screening", i, len(tasks))
-        values = fit_values(candidate, inputs, nominal, relative)
-        result.screened.append(Screened(
-            candidate, values, held_out(candidate, inputs, nominal, segments, values, relative),
-            relative, _first_order_ci(candidate, inputs, nominal, values, relative, n_eff,
-                                      frames), candidate.table_misfit_mm(values, inputs)))
+        result.screened.append(_screen(candidate, inputs, segments, relative, n_eff, frames))
     report("screening", len(tasks), len(tasks))
     result.screened.sort(key=lambda s: -excess_share(s.heldout, floor))
+    _screen_markers(result, solutions, basis, segments, n_eff, frames)
     exact = ExactModel(solutions, states, contexts, points, basis)
     result.stage = "refit"
     agreeing = [s for s in _best_per_effect(result.screened)
@@ -225,10 +236,89 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
                          frames, report, stop_requested)
         if second is not None:
             result.selected.append(second)
+    if not result.selected and not _structured(nominal.rms(), relative_nominal, floor):
+        # the clouds find nothing: a camera turned about the vertical or moved sideways
+        # slides the surfaces along themselves, which only the markers see
+        camera = _camera_from_markers(result, exact, inputs, floor)
+        result.selected = [] if camera is None else [camera]
     result.stage = "verdict"
     _verdict(result, floor, basis, solutions, segments, n_eff)
     result.stage = "done"
     return result
+
+
+def _screen(candidate: Candidate, inputs: Inputs, segments: np.ndarray, relative: bool,
+            n_eff: float, frames: int, channel: str = "clouds",
+            start: np.ndarray | None = None) -> Screened:
+    """A candidate fitted on the first-order model at inputs.field's entries, validated by
+    leaving each trajectory segment out."""
+    field = inputs.field
+    values = fit_values(candidate, inputs, field, relative, start=start)
+    return Screened(candidate, values, held_out(candidate, inputs, field, segments, values,
+                                                relative),
+                    relative, _first_order_ci(candidate, inputs, field, values, relative, n_eff,
+                                              frames),
+                    candidate.table_misfit_mm(values, inputs), channel)
+
+
+def _screen_markers(result: Diagnosis, solutions, basis: Basis, segments: np.ndarray,
+                    n_eff: float, frames: int) -> None:
+    """The camera effects screened on the markers' residuals (absolute: a camera error is
+    static), into result.markers, marker_floor_mm and marker_screened (best first)."""
+    observed = [f.markers_mm for f in result.observations.frames]
+    if not any(len(o) for o in observed):
+        return
+    marker_points = solutions.robot.marker_points
+    predicted = np.stack([marker_points.positions(p) for p in solutions.positions_mm])
+    markers = marker_field(observed, predicted, basis.of_frame)
+    if markers is None:
+        return
+    result.markers = markers
+    result.marker_floor_mm = noise_floor_mm(markers, basis.of_frame)
+    inputs = marker_inputs(markers, predicted, basis)
+    cameras = [h for h in hypotheses(result.robot, basis.column_set) if h.kind == "sensor"]
+    result.marker_screened = sorted(
+        (_screen(Candidate((h,)), inputs, segments, False, n_eff, frames, "markers")
+         for h in cameras), key=lambda s: -excess_share(s.heldout, result.marker_floor_mm))
+
+
+def camera_seen_by_markers(marker_screened: list[Screened], marker_floor_mm: float,
+                           table: Table | None,
+                           leaves_clouds_explained: Callable[[Screened], bool]
+                           ) -> Screened | None:
+    """The first camera effect of `marker_screened` (best first) that the markers accept
+    (rules 1-3 against their own noise floor), that puts the table where the camera shows it
+    and that leaves the clouds explained (their residual, with it applied, not structured).
+    Not that it must improve the clouds: the markers' six-parameter fit takes up part of the
+    model's own static mismatch at the markers in parameters the clouds see (a 1 degree turn
+    was fitted with a 0.5 mm sideways move, within its interval, that took the clouds from
+    0.82 to 0.94 mm RMS)."""
+    return next((s for s in marker_screened if clear_improvement(s.heldout, marker_floor_mm)
+                 and _table_agrees(s.table_misfit_mm, table) and leaves_clouds_explained(s)),
+                None)
+
+
+def _camera_from_markers(result: Diagnosis, exact: ExactModel, inputs: Inputs,
+                         floor: float) -> Final | None:
+    """camera_seen_by_markers as a Final: its exact prediction is the nominal one seen
+    through the camera effect (no FE solve), its held-out figures the markers'."""
+    nominal = result.nominal
+    relative_nominal = next(s.heldout.rms_before_mm for s in result.screened if s.relative)
+
+    def leaves_clouds_explained(screened: Screened) -> bool:
+        shift = screened.candidate.shift(screened.values, inputs)
+        return not _structured(nominal.rms(shift=shift), relative_nominal, floor)
+
+    screened = camera_seen_by_markers(result.marker_screened, result.marker_floor_mm,
+                                      exact.basis.table, leaves_clouds_explained)
+    if screened is None:
+        return None
+    candidate, values = screened.candidate, screened.values
+    prediction = exact.predict(candidate, values)
+    field = exact.field(prediction)
+    jacobian = shift_jacobian(candidate, exact.basis.inputs_for(field), values)
+    return Final(screened, Refit(candidate, values, field, jacobian, prediction, 0, values),
+                 screened.heldout, screened.ci95, True, screened.table_misfit_mm)
 
 
 def _refit(result: Diagnosis, exact: ExactModel, candidates: list[Screened], nominal: Field,
@@ -335,11 +425,7 @@ def _second(exact, result: Diagnosis, first: Final, inputs, nominal, segments, f
         report("second effect", i, len(others))
         pair = Candidate((taken, *other.candidate.hypotheses))
         start = np.concatenate([first.values, other.values])
-        values = fit_values(pair, inputs, nominal, relative, start=start)
-        pairs.append(Screened(pair, values, held_out(pair, inputs, nominal, segments, values,
-                                                     relative), relative,
-                              _first_order_ci(pair, inputs, nominal, values, relative, n_eff,
-                                              frames), pair.table_misfit_mm(values, inputs)))
+        pairs.append(_screen(pair, inputs, segments, relative, n_eff, frames, start=start))
     report("second effect", len(others), len(others))
     pairs = [p for p in pairs if _table_agrees(p.table_misfit_mm, exact.basis.table)]
     if not pairs or stop_requested():
@@ -377,6 +463,16 @@ def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
     else:
         result.verdict = "unexplained" if structured or partial else "none"
     for chosen in result.selected:
+        if chosen.screened.channel == "markers":
+            # judged on the markers: the other camera effects the markers accept as well
+            near = [s.candidate.label for s in result.marker_screened
+                    if s is not chosen.screened
+                    and clear_improvement(s.heldout, result.marker_floor_mm)
+                    and _table_agrees(s.table_misfit_mm, basis.table)
+                    and indistinct(s.heldout, chosen.heldout)]
+            if near:
+                result.groups.append([chosen.candidate.label, *near])
+            continue
         near = [f.candidate.label for f in result.finals if f is not chosen
                 and f.accepted and indistinct(f.heldout, chosen.heldout)]
         # screened effects as good as the chosen one's screening: one signature on this data
@@ -425,6 +521,11 @@ def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
         "screened": len(result.screened),
         "not_refitted": result.not_refitted,
         "partial_effects": result.partial,
+        # the markers' residual (diagnosis.markers): None when the recordings have none
+        "markers": None if result.markers is None else {
+            "observations": len(result.markers.frame) // 3,
+            "noise_floor_mm": round(result.marker_floor_mm, 3),
+            "rms_nominal_mm": round(result.markers.rms(), 3)},
     }
 
 

@@ -87,6 +87,9 @@ def effect_entry(item: Final | Screened, floor_mm: float, selected: bool) -> dic
             "accepted": item.accepted if isinstance(item, Final) else None,
             "refitted": isinstance(item, Final),
             "mode": MODES[screened.relative],
+            # the residuals it was judged on: the point clouds', or the markers' (a camera
+            # effect the clouds cannot see, diagnosis.markers)
+            "channel": screened.channel,
             "segment_gain_z": _finite(held.gain_z()),
             "excess_share": _finite(excess_share(held, floor_mm)),
             "explained_mm": _finite(explained_mm(held)),
@@ -99,16 +102,20 @@ def effect_entry(item: Final | Screened, floor_mm: float, selected: bool) -> dic
 
 def diagnosis_document(diagnosis: Diagnosis, inputs: dict[str, Any]) -> dict[str, Any]:
     """The diagnosis.json document (also of an interrupted run: `interrupted`, `stage`)."""
-    floor = diagnosis.noise_floor_mm
+    floor = diagnosis.floor_for
     chosen = {id(f) for f in diagnosis.selected}
     refitted = {(f.screened.key) for f in diagnosis.finals}
-    ranked: list[dict[str, Any]] = [effect_entry(f, floor, True) for f in diagnosis.selected]
-    ranked += [effect_entry(f, floor, False) for f in diagnosis.finals if id(f) not in chosen]
+    ranked: list[dict[str, Any]] = [effect_entry(f, floor(f), True) for f in diagnosis.selected]
+    ranked += [effect_entry(f, floor(f), False) for f in diagnosis.finals
+               if id(f) not in chosen]
     seen = set(refitted)
     for s in diagnosis.screened:  # the best target of every other effect and mode
         if s.key not in seen:
             seen.add(s.key)
-            ranked.append(effect_entry(s, floor, False))
+            ranked.append(effect_entry(s, floor(s), False))
+    selected = {id(f.screened) for f in diagnosis.selected}
+    ranked += [effect_entry(s, floor(s), False) for s in diagnosis.marker_screened
+               if id(s) not in selected]
     return {
         "format": FORMAT,
         "version": 1,
@@ -134,14 +141,20 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
     lines = []
     if diagnosis.selected:
         for final in diagnosis.selected:
+            floor = diagnosis.floor_for(final)
             values = ", ".join(f"{k} = {v['value']:.4g} [{v['ci95'][0]:.4g}, {v['ci95'][1]:.4g}]"
                                f"{' ' + v['unit'] if v['unit'] else ''}"
-                               for k, v in effect_entry(final, diagnosis.noise_floor_mm,
-                                                        True)["parameters"].items())
+                               for k, v in effect_entry(final, floor, True)["parameters"].items())
+            markers = final.screened.channel == "markers"
             lines.append(f"{final.candidate.label}: {values}; held-out residual "
+                         f"{'of the markers ' if markers else ''}"
                          f"{final.heldout.rms_before_mm:.2f} -> {final.heldout.rms_after_mm:.2f}"
                          f" mm ({MODES[final.screened.relative]}), noise floor "
-                         f"{diagnosis.noise_floor_mm:.2f} mm")
+                         f"{floor:.2f} mm")
+            if markers:
+                lines.append("seen by the markers only: the point clouds show no structured "
+                             "mismatch (a camera turned about its axis or moved sideways "
+                             "slides the surfaces along themselves)")
     elif diagnosis.verdict == "none":
         lines.append("no effect of the library improves the held-out fit clearly: the model "
                      f"explains the recording to {evidence['rms_nominal_mm']:.2f} mm RMS "

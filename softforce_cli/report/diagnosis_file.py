@@ -43,9 +43,18 @@ class Effect:
     target: str | None = None
 
     @property
+    def channel(self) -> str:
+        """The residuals it was judged on: "clouds", or "markers" (a camera effect the
+        clouds cannot see; its held-out figures are the markers')."""
+        evidence = self.evidence if isinstance(self.evidence, dict) else {}
+        return str(evidence.get("channel", "clouds"))
+
+    @property
     def label(self) -> str:
-        """"cable_slack (north)", or the name alone without a target."""
-        return self.name if not self.target else f"{self.name} ({self.target})"
+        """"cable_slack (north)", or the name alone without a target; "[markers]" after an
+        effect judged on the markers."""
+        label = self.name if not self.target else f"{self.name} ({self.target})"
+        return label if self.channel == "clouds" else f"{label} [{self.channel}]"
 
     @property
     def improvement(self) -> float:

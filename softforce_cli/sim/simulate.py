@@ -269,9 +269,9 @@ def _frames(
                            if len(markers_robot) else markers_robot)
             solved_key = key
         depth, color = _sensor(view, intrinsics, rng, noise)
-        observed = markers_cam + scenario.marker_sigma_mm * rng.standard_normal(
-            markers_cam.shape
-        )
+        # a marker is located in the depth image: a depth scale moves it along its ray
+        observed = markers_cam * depth_scale(scenario.effects) + (
+            scenario.marker_sigma_mm * rng.standard_normal(markers_cam.shape))
         time_ns = round(index * scenario.frame_interval_s * 1e9)
         record = _truth_frame(index, time_ns, robot, frame.actuation, state, markers_robot,
                               markers_cam, observed)
