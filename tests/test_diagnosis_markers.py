@@ -9,7 +9,7 @@ import pytest
 from softforce_cli.diagnosis.background import observed_table
 from softforce_cli.diagnosis.basis import Basis
 from softforce_cli.diagnosis.fitting import fit_values, held_out
-from softforce_cli.diagnosis.markers import marker_field, marker_inputs
+from softforce_cli.diagnosis.markers import marker_field, marker_inputs, marker_rms_mm
 from softforce_cli.diagnosis.selection import clear_improvement, noise_floor_mm
 from softforce_cli.diagnosis.sensitivities import ColumnSet
 from softforce_cli.model.effects import frame_contexts
@@ -33,6 +33,10 @@ def test_marker_entries_are_the_coordinates_seen_less_predicted():
     np.testing.assert_allclose(field.mean_mm[:27], 0.1)
     np.testing.assert_allclose(field.mean_mm[27:].reshape(-1, 3), [[0.0, 0.0, 1.0]] * 8)
     assert 3 * 4 + 2 not in field.node[27:]  # no entry for the unseen marker
+    # each marker's distance from the model: 0.1 mm along x, y and z, then 1 mm along z
+    rms = marker_rms_mm(field, [f"m{k}" for k in range(9)])
+    assert rms["m4"] == pytest.approx(np.sqrt(3) * 0.1)  # seen in frame 0 only
+    assert rms["m0"] == pytest.approx(np.sqrt((3 * 0.01 + 1.0) / 2))
     # a recording without markers beside one with: its frames count as unseen
     mixed = marker_field([MARKERS, np.zeros((0, 3)), MARKERS], predicted, np.array([0, 1, 0]))
     np.testing.assert_array_equal(np.unique(mixed.frame), [0, 2])

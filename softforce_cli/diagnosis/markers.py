@@ -58,3 +58,13 @@ def marker_inputs(field: Field, predicted_mm: np.ndarray, basis: Basis) -> Input
                   np.zeros((len(basis.column_set.names), count)), basis.column_set,
                   basis.contexts, basis.cables, basis.robot_from_camera, basis.predicted_mm,
                   basis.state_inputs, basis.cable_columns, basis.table)
+
+
+def marker_rms_mm(field: Field, marker_ids: Sequence[str]) -> dict[str, float]:
+    """{marker id: RMS distance (mm) between where it was seen and where the model puts it,
+    over the frames that saw it} of a marker field; markers never seen are left out."""
+    marker = field.node // 3
+    squares = np.bincount(marker, weights=field.mean_mm**2, minlength=len(marker_ids))
+    entries = np.bincount(marker, minlength=len(marker_ids))
+    return {name: float(np.sqrt(3.0 * squares[k] / entries[k]))
+            for k, name in enumerate(marker_ids) if entries[k]}

@@ -22,7 +22,7 @@ from softforce_cli.diagnosis.fitting import (
     shift_jacobian,
 )
 from softforce_cli.diagnosis.hypotheses import ABSOLUTE, Inputs, hypotheses
-from softforce_cli.diagnosis.markers import marker_field, marker_inputs
+from softforce_cli.diagnosis.markers import marker_field, marker_inputs, marker_rms_mm
 from softforce_cli.diagnosis.observations import DiagnosisError, Observations
 from softforce_cli.diagnosis.refit import ExactModel, Refit, refit
 from softforce_cli.diagnosis.residuals import Field, measure
@@ -490,6 +490,10 @@ def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
     # as well as a softer north one (held-out 0.396 and 0.401 mm), and the residual is
     # largest on the north arm (2.3 mm RMS against 1.0-1.2 elsewhere)
     result.location = _location(result.robot, nominal if fitted else final, result.selected)
+    if result.markers is not None:  # the nominal model's error at each marker
+        result.location["marker_rms_mm"] = {
+            k: round(v, 3) for k, v in marker_rms_mm(result.markers,
+                                                     result.robot.marker_ids).items()}
     mesh = result.robot.mesh
     given = result.uncorrected.rms()
     corrections = (np.zeros(1) if solutions.given_mm is None else
