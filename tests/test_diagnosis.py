@@ -325,3 +325,39 @@ def test_a_camera_seen_by_the_markers_must_pass_their_rules_and_agree_with_table
                                   lambda s: True) is turned
     assert camera_seen_by_markers([tilted, small, turned], floor, table,
                                   lambda s: s is not turned) is None
+
+
+def test_a_refit_past_what_the_model_can_solve_pulls_back_and_says_where():
+    """An exact model that has no equilibrium below 0.75 of its stiffness at one state (the
+    coarse Diamond snaps through there under the north cable's 9 mm): the refit of a body
+    0.6 as stiff pulls back to where it can solve, and the summary says where it stopped."""
+    from types import SimpleNamespace
+
+    from softforce_cli.diagnosis.refit import NoEquilibriumError, Prediction, refit
+    from softforce_cli.diagnosis.report import unreached_line
+
+    frames, nodes = 8, 30
+    pattern = np.sin(np.linspace(0, 3, nodes))[None] * np.linspace(1.0, 2.0, frames)[:, None]
+    inputs = _linear_inputs(frames, nodes, pattern)
+    softer = Candidate((Hypothesis("stiffness_scale", None, ("scale",), np.ones(1),
+                                   np.array([0.5]), np.array([2.0])),))
+
+    class Snapping:
+        basis = SimpleNamespace(inputs_for=lambda field: inputs)
+
+        def predict(self, candidate, values):
+            if values[0] < 0.75:
+                raise NoEquilibriumError(candidate, values, np.array([9.0, 0.0]))
+            self.values = values
+            return Prediction(np.zeros((1, nodes, 3)), np.zeros(frames, dtype=int), 1)
+
+        def field(self, prediction):
+            return _field((1.0 / self.values[0] - 1.0 / 0.6) * pattern)
+
+    fitted = refit(Snapping(), softer, np.array([0.6]), False, lambda f, j, v: np.zeros(1))
+    assert 0.75 <= fitted.values[0] <= 0.8
+    assert fitted.unreached and all(isinstance(e, NoEquilibriumError)
+                                    for e in fitted.unreached)
+    line = unreached_line(SimpleNamespace(candidate=softer, refit=fitted, values=fitted.values))
+    assert "no equilibrium at inputs (9, 0) with stiffness_scale at (0.6)" in line
+    assert f"stopped at scale = {fitted.values[0]:.4g}" in line

@@ -199,7 +199,7 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
         result.screened.append(_screen(candidate, inputs, segments, relative, n_eff, frames))
     report("screening", len(tasks), len(tasks))
     result.screened.sort(key=lambda s: -excess_share(s.heldout, floor))
-    _screen_markers(result, solutions, basis, segments, n_eff, frames)
+    _screen_markers(result, solutions, basis, segments, frames)
     exact = ExactModel(solutions, states, contexts, points, basis)
     result.stage = "refit"
     agreeing = [s for s in _best_per_effect(result.screened)
@@ -262,9 +262,10 @@ def _screen(candidate: Candidate, inputs: Inputs, segments: np.ndarray, relative
 
 
 def _screen_markers(result: Diagnosis, solutions, basis: Basis, segments: np.ndarray,
-                    n_eff: float, frames: int) -> None:
+                    frames: int) -> None:
     """The camera effects screened on the markers' residuals (absolute: a camera error is
-    static), into result.markers, marker_floor_mm and marker_screened (best first)."""
+    static), into result.markers, marker_floor_mm and marker_screened (best first); their
+    intervals count the markers' own effective frames."""
     observed = [f.markers_mm for f in result.observations.frames]
     if not any(len(o) for o in observed):
         return
@@ -276,6 +277,7 @@ def _screen_markers(result: Diagnosis, solutions, basis: Basis, segments: np.nda
     result.markers = markers
     result.marker_floor_mm = noise_floor_mm(markers, basis.of_frame)
     inputs = marker_inputs(markers, predicted, basis)
+    n_eff = effective_sample_size(markers, frames)
     cameras = [h for h in hypotheses(result.robot, basis.column_set) if h.kind == "sensor"]
     result.marker_screened = sorted(
         (_screen(Candidate((h,)), inputs, segments, False, n_eff, frames, "markers")

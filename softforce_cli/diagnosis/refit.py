@@ -62,6 +62,26 @@ STEP_SETTINGS = dataclasses.replace(SETTINGS, max_iterations=15)
 BACKOFFS = 2
 
 
+class NoEquilibriumError(SolverError):
+    """The exact model has no equilibrium near the recording's shape at one state with a
+    candidate's values, even by continuation: past a snap-through of the mesh (the coarse
+    Diamond's P2 model tips its apex between 0.75 and 0.7 of its stiffness under the north
+    cable's 9 mm), or a value the body itself could not hold.
+
+    inputs : (a,) the state's effective cable inputs.
+    values : (k,) the candidate's values tried.
+    """
+
+    def __init__(self, candidate: Candidate, values: np.ndarray, inputs: np.ndarray) -> None:
+        self.candidate, self.values, self.inputs = candidate, np.asarray(values), inputs
+        super().__init__(f"no equilibrium at inputs {_listed(inputs)} with "
+                         f"{candidate.label} at {_listed(values)}")
+
+
+def _listed(values: np.ndarray) -> str:
+    return "(" + ", ".join(f"{v:.4g}" for v in np.asarray(values, dtype=float)) + ")"
+
+
 @dataclass(frozen=True, eq=False)
 class Prediction:
     """The exact model's surface with a candidate: positions_mm (G, n, 3) of G solved groups
@@ -79,7 +99,9 @@ class Refit:
     """A candidate on the exact model: the fitted values (k,); the exact residual entries,
     first-order Jacobian (E, k) and prediction at `evaluated` (k,) (the last exact
     evaluation: `values` is one Gauss-Newton step from it when that step was within half
-    the 95% interval, else `values` itself); and the FE solves it took."""
+    the 95% interval, else `values` itself); the FE solves it took; and the values the exact
+    model could not follow (`unreached`: each the SolverError, a NoEquilibriumError as a
+    rule, after which the values were pulled back)."""
 
     candidate: Candidate
     values: np.ndarray
@@ -88,6 +110,7 @@ class Refit:
     prediction: Prediction
     solves: int
     evaluated: np.ndarray
+    unreached: tuple[SolverError, ...] = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -140,7 +163,10 @@ class ExactModel:
                                              start_mm=start, settings=SETTINGS)
                 solves += 1
             except SolverError:  # too far for Newton from the first-order start
-                solution = self._continued(candidate, values, first)
+                try:
+                    solution = self._continued(candidate, values, first)
+                except SolverError as error:
+                    raise NoEquilibriumError(candidate, values, inputs) from error
                 solves += CONTINUATION_STEPS
             predicted[g] = solution.positions_mm[:n]
         sensor = effects_of_kind(effects, "sensor")
@@ -222,13 +248,15 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
     model, without solving the states again (the data cannot tell the two values apart)."""
     values = np.clip(np.asarray(start, dtype=float), candidate.lower, candidate.upper)
     neutral = np.clip(candidate.start, candidate.lower, candidate.upper)
+    unreached: list[SolverError] = []
     for backoff in range(BACKOFFS + 1):
         try:
             prediction = exact.predict(candidate, values)
             break
-        except SolverError:  # beyond the equilibria near the nominal one
+        except SolverError as error:  # beyond the equilibria near the nominal one
             if backoff == BACKOFFS:
                 raise
+            unreached.append(error)
             values = 0.5 * (values + neutral)
     solves = prediction.solves
     field = exact.field(prediction)
@@ -241,13 +269,15 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
         trial = np.clip(values + step, candidate.lower, candidate.upper)
         if np.all(np.abs(trial - values) <= np.maximum(
                 REFIT_TOLERANCE * span, 0.5 * half_widths(field, jacobian, values))):
-            return Refit(candidate, trial, field, jacobian, prediction, solves, values)
+            return Refit(candidate, trial, field, jacobian, prediction, solves, values,
+                         tuple(unreached))
         moved = None
         for _ in range(BACKOFFS):
             try:
                 moved = exact.predict(candidate, trial)
                 break
-            except SolverError:  # the step left the region Newton can follow: halve it
+            except SolverError as error:  # the step left what Newton can follow: halve it
+                unreached.append(error)
                 trial = 0.5 * (values + trial)
         if moved is None:
             break
@@ -257,7 +287,8 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
             break
         values, prediction, field = trial, moved, trial_field
         jacobian = shift_jacobian(candidate, exact.basis.inputs_for(field), values)
-    return Refit(candidate, values, field, jacobian, prediction, solves, values)
+    return Refit(candidate, values, field, jacobian, prediction, solves, values,
+                 tuple(unreached))
 
 
 def _step(field: Field, jacobian: np.ndarray, relative: bool) -> np.ndarray:

@@ -13,6 +13,7 @@ import numpy as np
 
 from softforce_cli import __version__
 from softforce_cli.diagnosis.pipeline import Diagnosis, Final, Screened
+from softforce_cli.diagnosis.refit import NoEquilibriumError
 from softforce_cli.diagnosis.selection import excess_share, explained_mm
 from softforce_cli.model.effects import EFFECTS, Effect, effect_toml
 
@@ -94,6 +95,9 @@ def effect_entry(item: Final | Screened, floor_mm: float, selected: bool) -> dic
             "excess_share": _finite(excess_share(held, floor_mm)),
             "explained_mm": _finite(explained_mm(held)),
             "fe_solves": item.refit.solves if isinstance(item, Final) else 0,
+            # values the exact model could not follow, after which the refit pulled back
+            "no_equilibrium": ([str(e) for e in item.refit.unreached]
+                               if isinstance(item, Final) else []),
             "table_misfit_mm": (None if item.table_misfit_mm is None
                                 else round(item.table_misfit_mm, 3)),
         },
@@ -170,6 +174,7 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
                          f"{diagnosis.noise_floor_mm:.2f} mm): physics outside the library?")
     for group in diagnosis.groups:
         lines.append(f"this data cannot tell apart: {', '.join(group)} ({group_reason(group)})")
+    lines += [unreached_line(final) for final in diagnosis.finals if final.refit.unreached]
     if (evidence.get("prediction_element") != evidence.get("element")
             and evidence["rms_given_element_mm"] > 1.5 * evidence["rms_nominal_mm"]):
         lines.append(f"the robot's {evidence['element']} mesh alone leaves "
@@ -200,6 +205,19 @@ def fitted_robot_toml(robot_file: Path, diagnosis: Diagnosis, output_dir: Path) 
     text = re.sub(r"(?ms)^\[\[effect\]\]\n.*?(?=^\[|\Z)", "", text)
     header = f"\n# fitted by softforce diagnose {__version__} (diagnosis.json)\n"
     return text.rstrip("\n") + "\n" + header + "\n".join(effect_toml(e) for e in effects)
+
+
+def unreached_line(final: Final) -> str:
+    """Where a refit stopped because the exact model has no equilibrium further on: the mesh,
+    not the body, may be what leaves the mismatch there."""
+    first = final.refit.unreached[0]
+    where = f" ({first})" if isinstance(first, NoEquilibriumError) else f": {first}"
+    values = ", ".join(f"{name} = {value:.4g}" for name, value in zip(
+        (f"{h.label}.{p}" if len(final.candidate.hypotheses) > 1 else p
+         for h in final.candidate.hypotheses for p in h.free), final.values, strict=True))
+    return (f"{final.candidate.label}: the model has no equilibrium near the recording "
+            f"further on{where}, so its fit stopped at {values}: a snap-through of this "
+            "mesh may be what leaves the mismatch (a finer mesh would tell)")
 
 
 def group_reason(group: list[str]) -> str:
