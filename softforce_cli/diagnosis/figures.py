@@ -78,12 +78,19 @@ def _per_frame_rms(field: Field, frames: int, relative: bool) -> np.ndarray:
 def save_signature_plot(diagnosis: Diagnosis, path: Path, force: bool) -> None:
     """Per-frame RMS residual (nominal and fitted) against actuation amplitude, loading
     direction, hold time and mean depth, with the noise floor; relative to the static
-    baseline per node unless the selected effect was accepted on absolute residuals."""
+    baseline per node unless the selected effect was accepted on absolute residuals. A
+    camera effect judged on the markers gets their signature instead (_marker_signature)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    if diagnosis.selected and diagnosis.selected[0].screened.channel == "markers":
+        figure = _marker_signature(diagnosis, plt)
+        with atomic_path(path, force) as temporary:
+            figure.savefig(temporary, dpi=110, format="png")
+        plt.close(figure)
+        return
     frames = diagnosis.observations.frames
     amplitude = np.array([np.abs(f.actuation).sum() for f in frames])
     contexts = frame_contexts(diagnosis.observations.times_s, diagnosis.observations.actuations)
@@ -109,3 +116,51 @@ def save_signature_plot(diagnosis: Diagnosis, path: Path, force: bool) -> None:
     with atomic_path(path, force) as temporary:
         figure.savefig(temporary, dpi=110, format="png")
     plt.close(figure)
+
+
+def _marker_signature(diagnosis: Diagnosis, plt):
+    """The markers' evidence for a camera effect: each marker's mean residual seen from
+    above (arrows, magnified), nominal and with the effect, and each frame's marker RMS
+    against the markers' noise floor."""
+    field, inputs = diagnosis.markers, diagnosis.marker_inputs
+    chosen = diagnosis.selected[0]
+    after = field.mean_mm - chosen.candidate.shift(chosen.values, inputs)
+    marker = field.node // 3
+    count = int(marker.max()) + 1
+    entries = np.bincount(marker, minlength=count) / 3
+
+    def per_marker(values: np.ndarray) -> np.ndarray:  # (k, 3) mean over frames
+        sums = np.zeros((count, 3))
+        np.add.at(sums, (marker, field.node % 3), values)
+        return sums / np.maximum(entries, 1)[:, None]
+
+    where = per_marker(inputs.positions[np.arange(len(marker)), field.node % 3])
+    before_mean, after_mean = per_marker(field.mean_mm), per_marker(after)
+    seen = entries > 0
+    span = float(np.ptp(where[seen, :2], axis=0).max(initial=1.0))
+    scale = 0.15 * span / max(float(np.abs(before_mean[seen, :2]).max(initial=0.0)), 1e-6)
+    figure, (top, rms) = plt.subplots(1, 2, figsize=(11, 4.5))
+    for mean, colour, label in ((before_mean, "C0", "nominal"),
+                                (after_mean, "C1", f"with {chosen.candidate.label}")):
+        top.quiver(where[seen, 0], where[seen, 1], mean[seen, 0], mean[seen, 1],
+                   color=colour, angles="xy", scale_units="xy", scale=1.0 / scale,
+                   label=label)
+    top.scatter(where[seen, 0], where[seen, 1], s=8, color="k")
+    top.set_aspect("equal")
+    top.set_xlabel("x (mm)")
+    top.set_ylabel("y (mm)")
+    top.set_title(f"markers' mean residual from above, x {scale:.0f}", fontsize=9)
+    top.legend(fontsize=8)
+    frames = len(diagnosis.observations.frames)
+    for values, label in ((field.mean_mm, "nominal"), (after, "fitted")):
+        per_frame = _per_frame_rms(Field(field.frame, field.node, values, field.weight),
+                                   frames, relative=False)
+        rms.scatter(np.arange(frames), per_frame, s=10, label=label)
+    rms.axhline(diagnosis.marker_floor_mm, color="grey", lw=0.8, ls="--")
+    rms.set_xlabel("frame")
+    rms.set_ylabel("markers' RMS residual per coordinate (mm)")
+    rms.legend()
+    figure.suptitle(f"verdict: {diagnosis.verdict}, seen by the markers (dashed: their "
+                    "noise floor)")
+    figure.tight_layout()
+    return figure

@@ -121,9 +121,10 @@ class Diagnosis:
     not_refitted: list[str] = field(default_factory=list)
     # accepted effects that explain too little of the mismatch to be named (selection.explains)
     partial: list[str] = field(default_factory=list)
-    # the markers' residual entries (diagnosis.markers), their floor and the camera effects
-    # screened on them; None / NaN / empty without markers
+    # the markers' residual entries (diagnosis.markers), the screening's inputs there, their
+    # floor and the camera effects screened on them; None / NaN / empty without markers
     markers: Field | None = None
+    marker_inputs: Inputs | None = None
     marker_floor_mm: float = float("nan")
     marker_screened: list[Screened] = field(default_factory=list)
     stage: str = "observations"
@@ -276,7 +277,7 @@ def _screen_markers(result: Diagnosis, solutions, basis: Basis, segments: np.nda
         return
     result.markers = markers
     result.marker_floor_mm = noise_floor_mm(markers, basis.of_frame)
-    inputs = marker_inputs(markers, predicted, basis)
+    inputs = result.marker_inputs = marker_inputs(markers, predicted, basis)
     n_eff = effective_sample_size(markers, frames)
     cameras = [h for h in hypotheses(result.robot, basis.column_set) if h.kind == "sensor"]
     result.marker_screened = sorted(
