@@ -201,12 +201,16 @@ def test_an_effect_judged_on_the_markers_says_so(tmp_path):
         "heldout_rms_before_mm": 0.95, "heldout_rms_after_mm": 0.69,
         "evidence": {"channel": "markers", "mode": "absolute"}}
     (folder / "diagnosis.json").write_text(json.dumps({
-        **DIAGNOSIS, "verdict": "extrinsic_offset", "effects": [turned, *DIAGNOSIS["effects"]]}))
+        **DIAGNOSIS, "verdict": "extrinsic_offset", "effects": [turned, *DIAGNOSIS["effects"]],
+        "evidence": {**DIAGNOSIS["evidence"], "markers": {"noise_floor_mm": 0.44}}}))
     effects = load_run(folder).diagnose.diagnosis.effects
     assert [e.label for e in effects] == ["extrinsic_offset [markers]", "cable_slack (north)",
                                           "stiffness_scale"]
     report = build_report(load_run(folder), tmp_path / "report")
     assert "extrinsic_offset [markers]" in report.page.read_text()
+    # its held-out bars are drawn against the markers' floor, not beside the clouds'
+    assert {p.name for p in report.pngs} == {"effects.png", "marker_effects.png",
+                                              "location.png"}
 
 
 def test_bad_diagnosis_field_is_one_line(tmp_path):

@@ -6,6 +6,7 @@ dataclasses, so the PNG and the HTML show the same numbers.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -105,15 +106,26 @@ def truth_chart(truth: TruthReport) -> Chart:
 
 
 def diagnose_charts(diagnosis: Diagnosis) -> list[Chart]:
-    """Held-out residual before and after each ranked effect, against the noise floor."""
-    if not diagnosis.effects:
-        return []
-    names = np.array([e.label for e in diagnosis.effects])
-    before = np.array([e.heldout_rms_before_mm for e in diagnosis.effects])
-    after = np.array([e.heldout_rms_after_mm for e in diagnosis.effects])
-    return [Chart("effects", "Held-out residual before and after each effect", "effect",
-                  "held-out residual RMS (mm)",
-                  (Trace("before", names, before, kind="bar"),
-                   Trace("after", names, after, kind="bar")),
-                  reference=(diagnosis.noise_floor_mm, "noise floor")
-                  if np.isfinite(diagnosis.noise_floor_mm) else None)]
+    """Held-out residual before and after each ranked effect, against the noise floor: the
+    point clouds' effects, and those judged on the markers (their own residuals and floor,
+    evidence.markers) in a chart of their own."""
+    charts = []
+    evidence = diagnosis.extra.get("evidence")
+    markers = evidence.get("markers") if isinstance(evidence, dict) else None
+    markers = markers if isinstance(markers, dict) else {}
+    for channel, key, floor, title in (
+            ("clouds", "effects", diagnosis.noise_floor_mm, ""),
+            ("markers", "marker_effects", float(markers.get("noise_floor_mm") or math.nan),
+             " (the markers' residuals)")):
+        effects = [e for e in diagnosis.effects if e.channel == channel]
+        if not effects:
+            continue
+        names = np.array([e.label for e in effects])
+        before = np.array([e.heldout_rms_before_mm for e in effects])
+        after = np.array([e.heldout_rms_after_mm for e in effects])
+        charts.append(Chart(key, f"Held-out residual before and after each effect{title}",
+                            "effect", "held-out residual RMS (mm)",
+                            (Trace("before", names, before, kind="bar"),
+                             Trace("after", names, after, kind="bar")),
+                            reference=(floor, "noise floor") if np.isfinite(floor) else None))
+    return charts
