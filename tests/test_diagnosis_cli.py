@@ -52,6 +52,14 @@ def test_the_concealed_slack_is_named_located_fitted_and_halves_the_residual(sla
     assert first["heldout_rms_after_mm"] <= 0.5 * first["heldout_rms_before_mm"]
     assert document["location"]["cables"] == ["north"]
     assert document["location"]["regions"][0] == "north"
+    # the recording publishes markers: the north elbow is the furthest from the model, and
+    # a camera fitted on them is no explanation (the clouds named the slack)
+    marker_rms = document["location"]["marker_rms_mm"]
+    assert max(marker_rms, key=marker_rms.get) == "elbow_north"
+    assert document["evidence"]["markers"]["observations"] > 0
+    judged = [e for e in document["effects"] if e["evidence"]["channel"] == "markers"]
+    assert {e["name"] for e in judged} == {"extrinsic_offset", "depth_bias"}
+    assert not any(e["evidence"]["selected"] for e in judged)
 
 
 def test_diagnosis_json_follows_the_contract(slack_run):
@@ -109,6 +117,12 @@ def test_the_clean_control_answers_none(tmp_path, cache):
     document = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
     assert document["verdict"] == "none", document["effects"][:3]
     assert "[[effect]]" not in (tmp_path / "out" / "robot.fitted.toml").read_text()
+    # its markers were screened too (the clouds found nothing): a camera fitted on them
+    # leaves their held-out residual worse, so no camera effect is named
+    markers = document["evidence"]["markers"]
+    assert markers["noise_floor_mm"] == pytest.approx(0.5, rel=0.2)  # the scenario's noise
+    for judged in (e for e in document["effects"] if e["evidence"]["channel"] == "markers"):
+        assert judged["heldout_rms_after_mm"] > judged["heldout_rms_before_mm"]
 
 
 def test_bad_input_is_one_line(slack_run, tmp_path):
