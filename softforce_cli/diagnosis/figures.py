@@ -85,12 +85,16 @@ def save_signature_plot(diagnosis: Diagnosis, path: Path, force: bool) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    if diagnosis.selected and diagnosis.selected[0].screened.channel == "markers":
-        figure = _marker_signature(diagnosis, plt)
-        with atomic_path(path, force) as temporary:
-            figure.savefig(temporary, dpi=110, format="png")
-        plt.close(figure)
-        return
+    figure = (_marker_signature(diagnosis, plt)
+              if diagnosis.selected and diagnosis.selected[0].screened.channel == "markers"
+              else _cloud_signature(diagnosis, plt))
+    with atomic_path(path, force) as temporary:
+        figure.savefig(temporary, dpi=110, format="png")
+    plt.close(figure)
+
+
+def _cloud_signature(diagnosis: Diagnosis, plt):
+    """The clouds' per-frame RMS against actuation, loading, hold time and depth."""
     frames = diagnosis.observations.frames
     amplitude = np.array([np.abs(f.actuation).sum() for f in frames])
     contexts = frame_contexts(diagnosis.observations.times_s, diagnosis.observations.actuations)
@@ -113,9 +117,7 @@ def save_signature_plot(diagnosis: Diagnosis, path: Path, force: bool) -> None:
     axes[0].legend()
     figure.suptitle(f"verdict: {diagnosis.verdict} (dashed: noise floor)")
     figure.tight_layout()
-    with atomic_path(path, force) as temporary:
-        figure.savefig(temporary, dpi=110, format="png")
-    plt.close(figure)
+    return figure
 
 
 def _marker_signature(diagnosis: Diagnosis, plt):

@@ -121,9 +121,8 @@ class Diagnosis:
     not_refitted: list[str] = field(default_factory=list)
     # accepted effects that explain too little of the mismatch to be named (selection.explains)
     partial: list[str] = field(default_factory=list)
-    # the markers' residual entries (diagnosis.markers), the screening's inputs there, their
+    # the screening's inputs at the markers' residual entries (diagnosis.markers), their
     # floor and the camera effects screened on them; None / NaN / empty without markers
-    markers: Field | None = None
     marker_inputs: Inputs | None = None
     marker_floor_mm: float = float("nan")
     marker_screened: list[Screened] = field(default_factory=list)
@@ -133,6 +132,11 @@ class Diagnosis:
     @property
     def final_field(self) -> Field | None:
         return self.selected[-1].refit.field if self.selected else self.nominal
+
+    @property
+    def markers(self) -> Field | None:
+        """The markers' residual entries (diagnosis.markers), None without markers."""
+        return None if self.marker_inputs is None else self.marker_inputs.field
 
     def floor_for(self, item: Screened | Final) -> float:
         """The noise floor (mm) of the channel a candidate was judged on."""
@@ -240,7 +244,7 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
     if not result.selected and not _structured(nominal.rms(), relative_nominal, floor):
         # the clouds find nothing: a camera turned about the vertical or moved sideways
         # slides the surfaces along themselves, which only the markers see
-        camera = _camera_from_markers(result, exact, inputs, floor)
+        camera = _camera_from_markers(result, exact, inputs, relative_nominal, floor)
         result.selected = [] if camera is None else [camera]
     result.stage = "verdict"
     _verdict(result, floor, basis, solutions, segments, n_eff)
@@ -265,7 +269,7 @@ def _screen(candidate: Candidate, inputs: Inputs, segments: np.ndarray, relative
 def _screen_markers(result: Diagnosis, solutions, basis: Basis, segments: np.ndarray,
                     frames: int) -> None:
     """The camera effects screened on the markers' residuals (absolute: a camera error is
-    static), into result.markers, marker_floor_mm and marker_screened (best first); their
+    static), into result.marker_inputs, marker_floor_mm and marker_screened (best first); their
     intervals count the markers' own effective frames."""
     observed = [f.markers_mm for f in result.observations.frames]
     if not any(len(o) for o in observed):
@@ -275,7 +279,6 @@ def _screen_markers(result: Diagnosis, solutions, basis: Basis, segments: np.nda
     markers = marker_field(observed, predicted, basis.of_frame)
     if markers is None:
         return
-    result.markers = markers
     result.marker_floor_mm = noise_floor_mm(markers, basis.of_frame)
     inputs = result.marker_inputs = marker_inputs(markers, predicted, basis)
     n_eff = effective_sample_size(markers, frames)
@@ -296,17 +299,21 @@ def camera_seen_by_markers(marker_screened: list[Screened], marker_floor_mm: flo
     model's own static mismatch at the markers in parameters the clouds see (a 1 degree turn
     was fitted with a 0.5 mm sideways move, within its interval, that took the clouds from
     0.82 to 0.94 mm RMS)."""
-    return next((s for s in marker_screened if clear_improvement(s.heldout, marker_floor_mm)
-                 and _table_agrees(s.table_misfit_mm, table) and leaves_clouds_explained(s)),
-                None)
+    return next((s for s in marker_screened if _markers_accept(s, marker_floor_mm, table)
+                 and leaves_clouds_explained(s)), None)
+
+
+def _markers_accept(screened: Screened, marker_floor_mm: float, table: Table | None) -> bool:
+    """Rules 1-3 on the markers' residuals against their floor, and the table where seen."""
+    return (clear_improvement(screened.heldout, marker_floor_mm)
+            and _table_agrees(screened.table_misfit_mm, table))
 
 
 def _camera_from_markers(result: Diagnosis, exact: ExactModel, inputs: Inputs,
-                         floor: float) -> Final | None:
+                         relative_nominal: float, floor: float) -> Final | None:
     """camera_seen_by_markers as a Final: its exact prediction is the nominal one seen
     through the camera effect (no FE solve), its held-out figures the markers'."""
     nominal = result.nominal
-    relative_nominal = next(s.heldout.rms_before_mm for s in result.screened if s.relative)
 
     def leaves_clouds_explained(screened: Screened) -> bool:
         shift = screened.candidate.shift(screened.values, inputs)
@@ -470,22 +477,20 @@ def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
             # judged on the markers: the other camera effects the markers accept as well
             near = [s.candidate.label for s in result.marker_screened
                     if s is not chosen.screened
-                    and clear_improvement(s.heldout, result.marker_floor_mm)
-                    and _table_agrees(s.table_misfit_mm, basis.table)
+                    and _markers_accept(s, result.marker_floor_mm, basis.table)
                     and indistinct(s.heldout, chosen.heldout)]
-            if near:
-                result.groups.append([chosen.candidate.label, *near])
-            continue
-        near = [f.candidate.label for f in result.finals if f is not chosen
-                and f.accepted and indistinct(f.heldout, chosen.heldout)]
-        # screened effects as good as the chosen one's screening: one signature on this data
-        # (a 1% depth scale and a 4.7 mm camera move along its axis, 80 mm of depth at 470)
-        near += [s.candidate.label for s in _best_per_effect(result.screened)
-                 if s.key != chosen.screened.key and s.candidate.label not in near
-                 and s.candidate.hypotheses[0].name != chosen.candidate.hypotheses[0].name
-                 and clear_improvement(s.heldout, floor)
-                 and _table_agrees(s.table_misfit_mm, basis.table)
-                 and indistinct(s.heldout, chosen.screened.heldout)]
+        else:
+            near = [f.candidate.label for f in result.finals if f is not chosen
+                    and f.accepted and indistinct(f.heldout, chosen.heldout)]
+            # screened effects as good as the chosen one's screening: one signature on this
+            # data (a 1% depth scale and a 4.7 mm camera move along its axis, 80 mm of depth
+            # at 470)
+            near += [s.candidate.label for s in _best_per_effect(result.screened)
+                     if s.key != chosen.screened.key and s.candidate.label not in near
+                     and s.candidate.hypotheses[0].name != chosen.candidate.hypotheses[0].name
+                     and clear_improvement(s.heldout, floor)
+                     and _table_agrees(s.table_misfit_mm, basis.table)
+                     and indistinct(s.heldout, chosen.screened.heldout)]
         if near:
             result.groups.append([chosen.candidate.label, *near])
     # where the nominal residual is; a named effect's target first. A partial fit's target
