@@ -104,6 +104,10 @@ def point_tangent_contributions(model: FEModel, operators: np.ndarray, elements:
     return np.einsum("pir,pid->drp", G, moved).reshape(-1, len(G))
 
 
+# sparse_nnls forms C^T C up front for up to this many columns (1.2 GB in float64)
+GRAM_COLUMNS = 12_000
+
+
 def sparse_nnls(C: np.ndarray, b: np.ndarray, tolerance: float = ECSW_TOLERANCE,
                 max_elements: int | None = None,
                 progress: Callable[[int, int], None] | None = None) -> Sampling:
@@ -111,36 +115,52 @@ def sparse_nnls(C: np.ndarray, b: np.ndarray, tolerance: float = ECSW_TOLERANCE,
     or max_elements nonzero weights. With tolerance 0 it is scipy.optimize.nnls's optimum.
 
     Works on inner products only: with d = C^T b and the columns M = C^T C_P of the active
-    set P, the gradient is d - M w and |C w - b|^2 = b.b - 2 w.d_P + w.G w (G = M[P]), so an
-    iteration costs one product C^T c_j, not a pass over C[:, P].
+    set P, the gradient is d - M w, and at the active set's least squares weights (G w = d_P,
+    G = M[P]) |C w - b|^2 = b.b - w.d_P, so an iteration costs one column of C^T C, not a
+    pass over C[:, P].
     """
     m = C.shape[1]
     limit = m if max_elements is None else min(max_elements, m)
     bb = float(b @ b)
     target = tolerance**2 * bb
     d = C.T @ b
+    # every iteration needs one column of C^T C: a product reading all of C (a GB on the
+    # coarse Diamond), memory-bound; thousands of iterations make the whole Gram matrix,
+    # formed once at the BLAS's full speed, several times cheaper
+    products = C.T @ C if m <= GRAM_COLUMNS else None
     scale = 1e-14 * float(np.abs(d).max(initial=0.0))
     active: list[int] = []
-    # C^T C[:, active] in the first len(active) columns of a buffer that grows by doubling:
-    # stacking a column per iteration would copy the whole (m, s) block every time
+    # C^T c_j of each column that entered, in a slot of a buffer that grows by doubling; a
+    # column that leaves frees its slot (weight 0) for the next one: compacting the (m, s)
+    # buffer at every exit would copy hundreds of MB each time
     buffer = np.empty((m, min(limit, 64)))
+    slot_weights = np.zeros(buffer.shape[1])
+    slots: list[int] = []
+    free: list[int] = []
+    used = 0
     factor = _GramCholesky()
     weights = np.zeros(0)
     residual2 = bb
     for _ in range(3 * m):
         if residual2 <= target or len(active) >= limit:
             break
-        cross = buffer[:, : len(active)]
-        gradient = d - cross @ weights
+        gradient = d - buffer[:, :used] @ slot_weights[:used]
         gradient[active] = -np.inf
         best = int(np.argmax(gradient))
         if gradient[best] <= scale:
             break  # optimal: no element lowers the residual
-        if len(active) == buffer.shape[1]:
-            buffer = np.hstack([buffer, np.empty((m, min(len(active), limit)))])
-        buffer[:, len(active)] = C.T @ C[:, best]
+        if free:
+            slot = free.pop()
+        else:
+            if used == buffer.shape[1]:
+                grow = min(used, limit)
+                buffer = np.hstack([buffer, np.empty((m, grow))])
+                slot_weights = np.r_[slot_weights, np.zeros(grow)]
+            slot, used = used, used + 1
+        buffer[:, slot] = products[:, best] if products is not None else C.T @ C[:, best]
         active.append(best)
-        factor.append(buffer[active, len(active) - 1])
+        slots.append(slot)
+        factor.append(buffer[active, slot])
         weights = np.append(weights, 0.0)
         while True:
             trial = factor.solve(d[active])
@@ -153,15 +173,18 @@ def sparse_nnls(C: np.ndarray, b: np.ndarray, tolerance: float = ECSW_TOLERANCE,
             weights = weights + step * (trial - weights)
             keep = weights > 1e-14 * max(float(weights.max(initial=0.0)), 1e-300)
             keep[np.argmin(np.where(falling, weights, np.inf))] = False
+            for leaving in np.flatnonzero(~keep)[::-1]:
+                slot_weights[slots[leaving]] = 0.0
+                free.append(slots[leaving])
+                factor.remove(int(leaving))
             index = np.flatnonzero(keep)
             active = [active[i] for i in index]
-            buffer[:, : len(index)] = buffer[:, index]
+            slots = [slots[i] for i in index]
             weights = weights[index]
             if not active:
                 break
-            factor.reset(buffer[active, : len(active)])
-        gram = buffer[active, : len(active)]
-        residual2 = max(bb - 2 * weights @ d[active] + weights @ gram @ weights, 0.0)
+        slot_weights[slots] = weights
+        residual2 = max(bb - float(weights @ d[active]), 0.0) if active else bb
         if progress is not None:
             progress(len(active), limit)
     order = np.argsort(active)
@@ -171,15 +194,16 @@ def sparse_nnls(C: np.ndarray, b: np.ndarray, tolerance: float = ECSW_TOLERANCE,
 
 
 class _GramCholesky:
-    """Cholesky factor L L^T of the active columns' Gram matrix, grown a column at a time
-    (O(s^2) per column instead of a new O(s^3) factorisation per NNLS iteration: with ~2,000
-    active columns the difference is minutes). A column that is (numerically) dependent on
-    the others switches to least squares on the Gram matrix until the next reset."""
+    """Cholesky factor R^T R (R upper) of the active columns' Gram matrix, grown a column at
+    a time and shrunk by Givens rotations (O(s^2) per column in or out instead of a new
+    O(s^3) factorisation: with ~3,000 active columns the difference is minutes). A column
+    that is (numerically) dependent on the others switches to least squares on the Gram
+    matrix until the next reset."""
 
     def __init__(self) -> None:
         self.factor = np.empty((64, 64))
         self.size = 0
-        self.gram: np.ndarray | None = None  # kept only while L is not valid
+        self.gram: np.ndarray | None = None  # kept only while R is not valid
 
     def append(self, column: np.ndarray) -> None:
         """Add the new active column's Gram entries (s + 1,), its diagonal entry last."""
@@ -194,25 +218,47 @@ class _GramCholesky:
             bigger = np.empty((2 * len(self.factor),) * 2)
             bigger[:s, :s] = self.factor[:s, :s]
             self.factor = bigger
-        L = self.factor[:s, :s]
-        below = scipy.linalg.solve_triangular(L, column[:s], lower=True, check_finite=False)
-        pivot = float(column[s] - below @ below)
+        R = self.factor[:s, :s]
+        above = scipy.linalg.solve_triangular(R, column[:s], trans="T", check_finite=False)
+        pivot = float(column[s] - above @ above)
         if pivot <= 1e-12 * max(float(column[s]), 1e-300):
-            gram = L @ L.T
+            gram = R.T @ R
             self.gram = np.block([[gram, column[:s, None]], [column[None, :s], column[s:]]])
             self.size = s + 1
             return
-        self.factor[s, :s] = below
+        self.factor[:s, s] = above
+        self.factor[s, :s] = 0.0
         self.factor[s, s] = np.sqrt(pivot)
         self.size = s + 1
 
+    def remove(self, index: int) -> None:
+        """Drop active column `index`: its row and column leave the Gram matrix."""
+        s = self.size
+        if self.gram is not None:
+            self.reset(np.delete(np.delete(self.gram, index, axis=0), index, axis=1))
+            return
+        R = self.factor
+        # without column `index`, R is upper Hessenberg from there: rotate each subdiagonal
+        # entry into the row above (rows are contiguous: a rotation is two row operations)
+        R[:s, index:s - 1] = R[:s, index + 1:s].copy()
+        for i in range(index, s - 1):
+            a, b = R[i, i], R[i + 1, i]
+            norm = float(np.hypot(a, b))
+            if norm == 0.0:
+                continue
+            c, t = a / norm, b / norm
+            top, low = R[i, i:s - 1].copy(), R[i + 1, i:s - 1]
+            R[i, i:s - 1] = c * top + t * low
+            R[i + 1, i:s - 1] = c * low - t * top
+        self.size = s - 1
+
     def reset(self, gram: np.ndarray) -> None:
-        """Refactor from a whole Gram matrix (s, s) (after columns left the active set)."""
+        """Refactor from a whole Gram matrix (s, s)."""
         self.size = len(gram)
         try:
             self.factor = np.empty((max(64, 2 * self.size),) * 2)
             self.factor[: self.size, : self.size] = scipy.linalg.cholesky(
-                gram, lower=True, check_finite=False)
+                gram, lower=False, check_finite=False)
             self.gram = None
         except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
             self.gram = np.array(gram)
@@ -222,6 +268,6 @@ class _GramCholesky:
         1e-3 needs far less than their lost digits)."""
         if self.gram is not None:
             return np.linalg.lstsq(self.gram, right, rcond=None)[0]
-        L = self.factor[: self.size, : self.size]
-        half = scipy.linalg.solve_triangular(L, right, lower=True, check_finite=False)
-        return scipy.linalg.solve_triangular(L.T, half, lower=False, check_finite=False)
+        R = self.factor[: self.size, : self.size]
+        half = scipy.linalg.solve_triangular(R, right, trans="T", check_finite=False)
+        return scipy.linalg.solve_triangular(R, half, check_finite=False)
