@@ -60,6 +60,8 @@ COARSE = ROOT / "sample_data" / "diamond" / "diamond.toml"
 CACHE = ROOT / "out" / "bench_reduced"
 ACTUATION = np.array([5.0, 5.0, 0.0, 0.0])
 CALIBRATION_MM = np.array([6.0, 2.0, 4.0, 9.0])
+# where the sensing bench's probe touches the north bar (rest, mm)
+PROBE_MM = np.array([0.0, 45.0, 90.0])
 FIGURE = ROOT / "docs" / "figures" / "reduced_model_accuracy.png"
 # Cables over 0-10 mm (the sensing and calibration cases use up to 9 mm): the file's 20 mm
 # with the other cables held folds the p2 Diamond beyond a quick Newton solve.
@@ -99,10 +101,16 @@ def update_callable(robot: Robot, x: np.ndarray, tensions: np.ndarray):
 
 
 def cases(robot: Robot, max_force_n: float) -> list[tuple[str, LoadCase]]:
-    """Untrained cases: interior actuations; one force between features; two contacts."""
+    """Untrained cases: interior actuations; one force between features; two contacts; the
+    sensing bench's probe (benchmarks/bench_sense.py: 0.25 N into the north bar along the
+    normal of its nearest surface node, cables 5, 0, 5, 0 mm: a pair the actuation design
+    does not hold)."""
     points, normals = between_features(robot.mesh.nodes_mm, robot.mesh.surface_faces,
                                        robot.feature_nodes, robot.fixed_nodes, 3)
     inputs = robot.cable_inputs
+    surface = robot.mesh.surface_nodes
+    nearest = surface[np.argmin(np.linalg.norm(robot.mesh.nodes_mm[surface] - PROBE_MM, axis=1))]
+    inward = -robot.mesh.vertex_normals[nearest]
     return [
         ("actuation 7, 3, 8, 5 mm", LoadCase(inputs(np.array([7.0, 3.0, 8.0, 5.0])),
                                              points[:0], np.zeros((0, 3)))),
@@ -111,6 +119,8 @@ def cases(robot: Robot, max_force_n: float) -> list[tuple[str, LoadCase]]:
         ("actuation 3, 8, 2, 6 mm + two contacts 0.4 N",
          LoadCase(inputs(np.array([3.0, 8.0, 2.0, 6.0])), points[1:],
                   -0.4 * max_force_n * normals[1:])),
+        ("actuation 5, 0, 5, 0 mm + a 0.25 N probe", LoadCase(
+            inputs(np.array([5.0, 0.0, 5.0, 0.0])), PROBE_MM[None], 0.25 * inward[None])),
     ]
 
 

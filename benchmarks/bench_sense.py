@@ -88,6 +88,7 @@ def robot_with_element(element: str) -> Path:
         return ROBOT
     if element == "p2-shipped":
         return ROBOT.parent / "diamond_p2.toml"
+    OUT.mkdir(parents=True, exist_ok=True)
     path = OUT / f"diamond_{element}.toml"
     mesh = f'path = "{ROBOT.parent / "diamond_coarse.vtu"}"\nelement = "{element}"'
     if element == "p2-rom":

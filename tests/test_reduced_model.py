@@ -27,7 +27,13 @@ from softforce_cli.fem.reduction.ecsw import sparse_nnls
 from softforce_cli.fem.reduction.pod import pod_basis, projection_errors
 from softforce_cli.fem.reduction.reduced_model import ReducedModel, ReducedModelWarning
 from softforce_cli.fem.reduction.rom_file import load_reduction, reduced_model, save_reduction
-from softforce_cli.fem.reduction.train import TrainingSettings, train_robot
+from softforce_cli.fem.reduction.train import (
+    CLAMP_CLEARANCE_MM,
+    TrainingSettings,
+    contact_sites,
+    states_then_responses,
+    train_robot,
+)
 from softforce_cli.fem.statics import PointLoads, solve_equilibrium
 from softforce_cli.model.robot import load_robot, with_element
 from softforce_cli.model.structured import box_mesh
@@ -71,7 +77,8 @@ id = "side"
 position_mm = [60.0, -8.0, 0.0]
 """
 MAX_FORCE_N = 0.1
-SETTINGS = TrainingSettings(max_force_n=MAX_FORCE_N, validations=1)
+# 40 modes: with more, the beam's 240 elements are too few to sample from
+SETTINGS = TrainingSettings(max_force_n=MAX_FORCE_N, validations=1, max_modes=40)
 
 
 def write_beam(directory, divisions=(10, 2, 2), poisson=0.45, reduced=""):
@@ -110,7 +117,9 @@ def cases(robot):
 def test_training_is_small_and_validated(beam):
     robot, reduction, _ = beam
     info = reduction.info
-    assert 5 <= info["modes"] <= 120
+    assert 5 <= info["modes"] <= SETTINGS.max_modes
+    # contact equilibria were solved at every static snapshot (none on this beam buckles)
+    assert info["contact_snapshots"] == SETTINGS.contact_states * info["static_snapshots"]
     assert info["sampled_elements"] < len(robot.full_fe_model.tets)
     # the point pass keeps single quadrature points, not every point of the kept elements
     per_element = robot.full_fe_model.shape_gradients.shape[1]
@@ -225,6 +234,21 @@ def test_early_stopped_nnls_is_scipys_at_zero_tolerance_and_sparse_otherwise():
     assert np.all(early.weights > 0)
 
 
+@pytest.mark.parametrize("seed", [6, 7, 8])
+def test_nnls_that_drops_columns_on_the_way_is_still_scipys(seed):
+    # correlated columns and a target outside their cone: many columns enter and leave
+    rng = np.random.default_rng(seed)
+    C = rng.normal(size=(150, 20)) @ rng.normal(size=(20, 120)) + 0.1 * rng.normal(
+        size=(150, 120))
+    b = rng.normal(size=150)
+    dense = np.zeros(120)
+    exact = sparse_nnls(C, b, tolerance=0.0)
+    dense[exact.elements] = exact.weights
+    reference, _ = nnls(C, b)
+    np.testing.assert_allclose(C @ dense, C @ reference, atol=1e-8 * np.linalg.norm(b))
+    np.testing.assert_allclose(dense, reference, atol=1e-6 * np.abs(reference).max())
+
+
 def test_pod_recovers_a_known_subspace():
     rng = np.random.default_rng(4)
     subspace = np.linalg.qr(rng.normal(size=(300, 4)))[0]
@@ -236,6 +260,38 @@ def test_pod_recovers_a_known_subspace():
     assert singular[4] < 1e-6 * singular[0]
 
 
+def test_the_equilibria_keep_their_modes_against_many_responses():
+    rng = np.random.default_rng(5)
+    d = 400
+    states = np.linalg.qr(rng.normal(size=(d, 3)))[0] @ rng.normal(size=(3, 6))
+    # 300 responses of much larger norm in 60 other directions, a little of the states' span
+    responses = 50.0 * np.linalg.qr(rng.normal(size=(d, 60)))[0] @ rng.normal(size=(60, 300))
+    responses += 0.01 * states @ rng.normal(size=(6, 300))
+    states[:10] = responses[:10] = 0.0  # clamped dofs
+    basis, _ = states_then_responses(states, responses, 1e-10, max_modes=20)
+    assert basis.shape == (d, 20)
+    np.testing.assert_allclose(basis.T @ basis, np.eye(20), atol=1e-12)
+    assert projection_errors(basis, states).max() < 1e-10  # the equilibria exactly
+    assert np.abs(basis[:10]).max() == 0.0
+    # one POD of everything, capped alike, spends its modes on the responses
+    assert projection_errors(pod_basis(np.hstack([states, responses]), 1e-10, 20)[0],
+                             states).max() > 0.1
+
+
+def test_training_presses_away_from_the_clamp(beam):
+    robot, _, _ = beam
+    sites = contact_sites(robot)
+    rest = robot.mesh.nodes_mm
+    clamped = rest[robot.fixed_nodes]
+    distance = np.linalg.norm(rest[sites.nodes][:, None] - clamped[None], axis=2).min(axis=1)
+    assert distance.min() > CLAMP_CLEARANCE_MM
+    assert set(sites.nodes) <= set(robot.mesh.surface_nodes)
+    # the rest of the surface beyond the clearance is all eligible
+    beyond = robot.mesh.surface_nodes[rest[robot.mesh.surface_nodes, 0] > 20.0]
+    assert set(beyond) <= set(sites.nodes)
+    np.testing.assert_allclose(np.linalg.norm(sites.normals, axis=1), 1.0, atol=1e-12)
+
+
 def test_cli_reduce_resumes_from_snapshots_and_writes_a_usable_file(beam, tmp_path):
     _, trained, cache = beam
     toml = write_beam(tmp_path)
@@ -243,7 +299,8 @@ def test_cli_reduce_resumes_from_snapshots_and_writes_a_usable_file(beam, tmp_pa
     # a training stopped after its snapshots: the command picks them up
     resumed = tmp_path / "beam.rom.npz.snapshots.npz"
     shutil.copy(cache, resumed)
-    result = softforce("model", "reduce", toml, "-o", output, "--max-force", "0.1", "--json")
+    result = softforce("model", "reduce", toml, "-o", output, "--max-force", "0.1",
+                       "--max-modes", str(SETTINGS.max_modes), "--json")
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout)["modes"] == trained.mode_count
     assert not resumed.exists()  # deleted without --keep-snapshots

@@ -135,7 +135,8 @@ def reduce(
     element: Annotated[str, typer.Option(help="Element trained on: p2 or p2-p0 (accurate, "
                                               "locking-free), or p1.")] = "p2",
     max_force: Annotated[float, typer.Option(help="Largest contact force trained (N).")] = 1.0,
-    max_modes: Annotated[int, typer.Option(help="Cap on the basis size.")] = 120,
+    max_modes: Annotated[int, typer.Option(help="Cap on the basis size (the update costs "
+                                                "~ modes^2).")] = 200,
     box_fraction: Annotated[float, typer.Option(
         help="Train over this fraction of each cable's [min, max] from the robot file.")
     ] = 1.0,

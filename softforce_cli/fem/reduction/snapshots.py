@@ -1,13 +1,18 @@
 """Training data for a reduced model, from the full (accurate-element) model.
 
-Three kinds of snapshots, all in the full model:
+Four kinds of snapshots, all in the full model:
 - static equilibria over the actuation box (with the model's gravity): the rest, each cable
   at its max, each pair of neighbouring cables at their max, all at mid-range, and a few
   Halton points inside the box;
 - linear responses K^-1 H^T to unit forces along x, y, z at every feature point and to every
   cable, at a few of those equilibria: the columns the compliance W is made of;
 - loaded states: each equilibrium plus the first-order response to one or two contact forces
-  pressing along the inward normal at random feature points (up to max_force_n).
+  pressing along the inward normal at random feature points (up to max_force_n);
+- contact equilibria: at each static equilibrium, the nonlinear equilibria under one or two
+  forces pressing along the inward normal at random surface nodes (anywhere a probe may
+  touch, not only at features), and there the responses to the features' normal rows, the
+  cables and the contacts themselves: sensing linearises at such loaded states, where the
+  compliance differs from the unloaded one by tens of percent under a few tenths of a newton.
 """
 
 from __future__ import annotations
@@ -24,8 +29,14 @@ from softforce_cli.errors import SolverError
 from softforce_cli.fem.attachment import Attachment
 from softforce_cli.fem.cables import CableInputs
 from softforce_cli.fem.compliance import linearize
+from softforce_cli.fem.coordinates import Factor
 from softforce_cli.fem.model import FEModel
-from softforce_cli.fem.statics import Equilibrium, SolverSettings, solve_equilibrium
+from softforce_cli.fem.statics import (
+    Equilibrium,
+    PointLoads,
+    SolverSettings,
+    solve_equilibrium,
+)
 from softforce_cli.io.atomic import atomic_path
 
 # Contact forces in training reach this by default (N): the paper's heaviest weight, 1.06 N.
@@ -49,6 +60,9 @@ class TrainingSet:
     response_states: (t,) indices of the static snapshots where responses were taken.
     loaded_mm      : (L, n, 3) equilibria plus first-order contact responses.
     max_force_n    : the largest contact force used.
+    contact_mm     : (C, n, 3) nonlinear equilibria under contact forces.
+    contact_responses : (3n, Rc) responses at them, contact_columns per state (the features'
+                     normal rows, the cables, then the state's contacts zero-padded to two).
     """
 
     actuations: np.ndarray
@@ -58,6 +72,13 @@ class TrainingSet:
     response_states: np.ndarray
     loaded_mm: np.ndarray
     max_force_n: float
+    contact_mm: np.ndarray
+    contact_responses: np.ndarray
+
+    @property
+    def contact_columns(self) -> int:
+        """Responses per contact equilibrium (contact_responses is split by it)."""
+        return self.contact_responses.shape[1] // max(len(self.contact_mm), 1)
 
 
 def actuation_design(low: np.ndarray, high: np.ndarray, extra: int = 2) -> np.ndarray:
@@ -94,11 +115,30 @@ def response_state_indices(actuations: np.ndarray, count: int = 4) -> np.ndarray
     return np.array(chosen, dtype=np.int64)
 
 
+@dataclass(frozen=True)
+class ContactSites:
+    """Where training presses: surface nodes (k,) a probe may touch (away from the clamp) and
+    their outward unit normals at rest (k, 3); `per_state` contact equilibria per static one,
+    each with one or two forces of max_force_n times [CONTACT_LOW, CONTACT_HIGH] split
+    between them."""
+
+    nodes: np.ndarray
+    normals: np.ndarray
+    per_state: int = 3
+
+
+# A contact equilibrium's total force, as a fraction of max_force_n: a probe's 0.1-0.3 N and
+# the heaviest weights both fall inside with the default 1 N.
+CONTACT_LOW, CONTACT_HIGH = 0.1, 0.5
+
+
 def collect(model: FEModel, controls: tuple[str, ...], actuations: np.ndarray,
             feature_nodes: np.ndarray, feature_normals: np.ndarray,
             max_force_n: float = MAX_FORCE_N, response_states: int = 4,
-            progress: Callable[[int, int], None] | None = None) -> TrainingSet:
-    """Solve, linearise and load the full model at every training actuation (S, a)."""
+            progress: Callable[[int, int], None] | None = None,
+            sites: ContactSites | None = None) -> TrainingSet:
+    """Solve, linearise and load the full model at every training actuation (S, a); with
+    `sites`, also its contact equilibria and their responses (module docstring)."""
     rng = np.random.default_rng(SEED)
     states = response_state_indices(actuations, response_states)
     features = Attachment.at_nodes(feature_nodes)
@@ -106,6 +146,8 @@ def collect(model: FEModel, controls: tuple[str, ...], actuations: np.ndarray,
     total = 2 * len(actuations)
     done = 0
     positions, tensions, responses, loaded = [], [], [], []
+    contacts: list[np.ndarray] = []
+    contact_responses: list[np.ndarray] = []
     factor = None
     solved: list[tuple[np.ndarray, np.ndarray]] = []
     for index, values in enumerate(actuations):
@@ -130,14 +172,53 @@ def collect(model: FEModel, controls: tuple[str, ...], actuations: np.ndarray,
                                                            model.node_count)
             moved = lin.responses(rows) @ magnitudes
             loaded.append(x + moved.reshape(-1, 3))
+        if sites is not None:
+            for _ in range(sites.per_state):
+                state = _contact_state(model, CableInputs(controls, values), equilibrium,
+                                       features, feature_normals, sites, max_force_n, rng,
+                                       factor)
+                if state is not None:
+                    contacts.append(state[0])
+                    contact_responses.append(state[1])
         done += 1
         if progress is not None:
             progress(done, total)
+    shape = (0, model.node_count, 3)
     return TrainingSet(
         actuations=np.asarray(actuations, float), positions_mm=np.array(positions),
         tensions_n=np.array(tensions), responses=np.hstack(responses),
         response_states=states, loaded_mm=np.array(loaded), max_force_n=float(max_force_n),
+        contact_mm=np.array(contacts) if contacts else np.zeros(shape),
+        contact_responses=(np.hstack(contact_responses) if contact_responses
+                           else np.zeros((3 * model.node_count, 0))),
     )
+
+
+def _contact_state(model: FEModel, inputs: CableInputs, unloaded: Equilibrium,
+                   features: Attachment, feature_normals: np.ndarray, sites: ContactSites,
+                   max_force_n: float, rng: np.random.Generator, factor: Factor | None
+                   ) -> tuple[np.ndarray, np.ndarray] | None:
+    """One contact equilibrium from `unloaded`: (positions (n, 3), responses (3n, p + a + 2))
+    to the features' rest normals, the cables and its (up to two) contacts, or None when
+    Newton's method does not reach it (a load the body buckles under: left out)."""
+    count = int(rng.integers(1, 3))
+    picks = rng.choice(len(sites.nodes), size=count, replace=False)
+    total = rng.uniform(CONTACT_LOW, CONTACT_HIGH) * max_force_n
+    points = Attachment.at_nodes(sites.nodes[picks])
+    forces = -sites.normals[picks] * rng.dirichlet(np.ones(count))[:, None] * total
+    loads = PointLoads(points, forces)
+    try:
+        loaded = solve_equilibrium(model, inputs, loads, start_mm=unloaded.positions_mm,
+                                   settings=ATTEMPT)
+    except SolverError:
+        return None
+    x = loaded.positions_mm
+    lin = linearize(model, x, loaded.cable_tensions_n, loads, factorization=factor)
+    contact_rows = points.directional_rows(-sites.normals[picks], model.node_count).toarray()
+    rows = np.vstack([features.directional_rows(feature_normals, model.node_count).toarray(),
+                      model.cable_jacobian(x), contact_rows,
+                      np.zeros((2 - count, 3 * model.node_count))])
+    return x, lin.responses(rows)
 
 
 def _continued(model: FEModel, controls: tuple[str, ...], target: np.ndarray,
