@@ -128,6 +128,9 @@ def test_training_is_small_and_validated(beam):
         reduction.points)
     assert info["ecsw_residual"] <= SETTINGS.ecsw_tolerance
     assert reduction.box.rms_error_mm < 0.5
+    # validated at untrained actuations, and at each under a contact force
+    assert len(info["validation_rms_mm"]) == 2 * SETTINGS.validations
+    assert max(info["validation_rms_mm"]) < 0.5
     # clamped dofs stay clamped
     fixed = (3 * robot.full_fe_model.fixed_nodes[:, None] + np.arange(3)).ravel()
     assert np.abs(reduction.basis[fixed]).max() == 0.0
