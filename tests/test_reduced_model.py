@@ -283,7 +283,7 @@ def test_the_equilibria_keep_their_modes_against_many_responses():
 
 def test_training_presses_away_from_the_clamp(beam):
     robot, _, _ = beam
-    sites = contact_sites(robot)
+    sites = contact_sites(robot, SETTINGS.contact_states)
     rest = robot.mesh.nodes_mm
     clamped = rest[robot.fixed_nodes]
     distance = np.linalg.norm(rest[sites.nodes][:, None] - clamped[None], axis=2).min(axis=1)
@@ -315,6 +315,10 @@ def test_cli_reduce_resumes_from_snapshots_and_writes_a_usable_file(beam, tmp_pa
     assert_one_line_error(again, "already exists")
     bad = softforce("model", "reduce", toml, "-o", tmp_path / "x.rom.npz", "--element", "q9")
     assert_one_line_error(bad, "--element 'q9' unknown")
+    no_modes = softforce("model", "reduce", toml, "-o", tmp_path / "y.rom.npz", "--max-modes",
+                         "0")
+    assert_one_line_error(no_modes, "--max-modes 0 must be at least 1")
+    assert not (tmp_path / "y.rom.npz").exists()
 
 
 def test_feature_responses_span_the_compliance_columns(beam):

@@ -166,6 +166,8 @@ def reduce(
     robot = with_element(load_robot(robot_file), element)
     if not 0.0 < box_fraction <= 1.0:
         raise ModelError(f"--box-fraction {box_fraction:g} must be in (0, 1]")
+    if max_modes < 1:
+        raise ModelError(f"--max-modes {max_modes} must be at least 1")
     settings = TrainingSettings(max_force_n=max_force, max_modes=max_modes,
                                 box_fraction=box_fraction)
     # the snapshots are kept beside the output: a stopped training resumes after them

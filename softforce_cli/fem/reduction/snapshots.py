@@ -124,7 +124,7 @@ class ContactSites:
 
     nodes: np.ndarray
     normals: np.ndarray
-    per_state: int = 3
+    per_state: int
 
 
 # A contact equilibrium's total force, as a fraction of max_force_n: a probe's 0.1-0.3 N and
