@@ -534,6 +534,38 @@ def test_compliance_cable_rows_are_the_projected_jacobian(beam, reduced):
                                + H @ lin.free_motion_mm.ravel(), atol=1e-10)
 
 
+def test_sensing_linearisation_works_in_the_reduced_coordinates(beam):
+    """estimation.linear_model on a reduced model: its compliance and eq. 6 configuration
+    equal fem.compliance's at the same configuration, and neither the configuration it was
+    made at nor the one it moves to forms all the node positions (a lift reads all of V,
+    more than the rest of a reduced update): they answer for the nodes asked about."""
+    from softforce_cli.estimation.linear_model import LinearizedModel
+    from softforce_cli.fem.compliance import compliance, linearize
+
+    robot, reduction, _ = beam
+    model = ReducedModel(robot.full_fe_model, reduction)
+    eq = solve_equilibrium(model, robot.cable_inputs(np.array([3.0, 2.0])))
+    state = model.coordinates.state(eq.positions_mm)
+    nodes = robot.feature_nodes
+    linear = LinearizedModel(model, state, eq.cable_tensions_n, watched_nodes=nodes)
+    effectors = Attachment.at_nodes(nodes).directional_rows(robot.feature_normals,
+                                                            model.node_count)
+    contact, direction = Attachment.at_nodes(nodes[3:4]), -robot.feature_normals[3:4]
+    responses = linear.force_responses(contact, direction)
+    cached = linear.compliance(effectors, responses)
+    direct = compliance(linearize(model, eq.positions_mm, eq.cable_tensions_n), effectors,
+                        contact.directional_rows(direction, model.node_count))
+    for name in ("W_ea", "W_ef", "W_aa", "W_af", "delta_e_free", "delta_a_free"):
+        expected = getattr(direct, name)
+        np.testing.assert_allclose(getattr(cached, name), expected, rtol=1e-8,
+                                   atol=1e-9 * np.abs(expected).max(), err_msg=name)
+    moved = linear.configuration(eq.cable_tensions_n + 0.01, responses, np.array([0.05]))
+    at_nodes = moved.nodes_mm(nodes)
+    assert "positions_mm" not in state.__dict__ and "positions_mm" not in moved.__dict__
+    assert 0.01 < linear.moved_mm(at_nodes) < 5.0
+    np.testing.assert_allclose(at_nodes, moved.positions_mm[nodes], atol=1e-12)
+
+
 def test_held_starting_tensions_balance_the_start_and_ignore_idle_cables():
     """The starting tensions are the non-negative least-squares balance of the start's
     residual (scipy's nnls on the whole system as reference); a cable moving no coordinate

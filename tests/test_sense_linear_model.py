@@ -42,7 +42,7 @@ def test_cached_compliance_and_update_equal_a_direct_linearisation(state):
     x, tensions = equilibrium.positions_mm, equilibrium.cable_tensions_n
     points, directions, effectors = _geometry(robot, x)
     force_rows = points.directional_rows(directions, model.node_count)
-    linear = LinearizedModel(model, x, tensions)
+    linear = LinearizedModel(model, model.coordinates.state(x), tensions)
     responses = linear.force_responses(points, directions)
     cached = linear.compliance(effectors, responses)
     direct_lin = linearize(model, x, tensions)
@@ -53,14 +53,15 @@ def test_cached_compliance_and_update_equal_a_direct_linearisation(state):
     lam_a, lam_f = tensions + np.array([0.1, -0.05, 0.02, 0.0]), np.array([0.2, 0.1, 0.3])
     loads = lam_a @ model.cable_jacobian(x) + force_rows.T @ lam_f
     expected = x + direct_lin.free_motion_mm + direct_lin.responses(loads[None]).reshape(-1, 3)
-    np.testing.assert_allclose(linear.configuration(lam_a, responses, lam_f), expected,
-                               atol=1e-9)
+    np.testing.assert_allclose(linear.configuration(lam_a, responses, lam_f).positions_mm,
+                               expected, atol=1e-9)
     assert linear.moved_mm(x) == 0.0
 
 
 def test_contact_nodes_are_solved_once_and_combined_linearly(state):
     robot, model, equilibrium = state
-    linear = LinearizedModel(model, equilibrium.positions_mm, equilibrium.cable_tensions_n)
+    linear = LinearizedModel(model, model.coordinates.state(equilibrium.positions_mm),
+                             equilibrium.cable_tensions_n)
     node = robot.mesh.surface_nodes[:1]
     at = Attachment.at_nodes(node)
     x_axis = linear.force_responses(at, np.array([[1.0, 0, 0]]))
@@ -69,4 +70,4 @@ def test_contact_nodes_are_solved_once_and_combined_linearly(state):
     assert linear.cached_nodes == 1
     np.testing.assert_allclose(slanted, 0.6 * x_axis + 0.8 * z_axis, atol=1e-12)
     # a unit force's own displacement along it is positive (K positive definite there)
-    assert (x_axis[3 * node[0], 0]) > 0
+    assert model.coordinates.lift(x_axis)[3 * node[0], 0] > 0

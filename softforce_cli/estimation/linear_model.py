@@ -10,11 +10,16 @@ at a configuration x0 while the model stays near it:
   the first time a contact lands there and kept (a contact moves over a few neighbouring
   nodes from frame to frame), so a force along any direction there is a combination of 3
   cached columns; other attachments (a known contact inside an element) cache their column;
-- a frame's matrices are then gathers: W_ea = H_e Z_a, W_ef = H_e Z_f (H_e the matched
+- a frame's matrices are then products: W_ea = H_e Z_a, W_ef = H_e Z_f (H_e the matched
   features along the current normals), W_aa = H_a Z_a, W_af = H_a Z_f, and
   delta_e_free = H_e (x0 + dx_free), delta_a_free = delta_a(x0) + H_a dx_free;
 - the configuration follows linearly, x = x0 + dx_free + Z_a lam_a + Z_f lam_f (eq. 6 with
   K(x0)), which is eq. 6 exactly right after a relinearisation.
+
+Everything is held in the model's coordinates (fem.coordinates: x = x_0 + T q), and the
+configuration is a State: a reduced model's responses are r numbers, not 3n, and a frame
+forms the positions of the nodes it looks at (the mesh's, the features'), never all of them
+(lifting V q reads all of V: more than the rest of a reduced update).
 
 The caller relinearises (K and the internal forces at the new x: a Newton step) when the
 configuration has moved more than a tolerance from x0 (EstimationSettings.relinearize_mm).
@@ -26,29 +31,33 @@ import numpy as np
 import scipy.sparse as sp
 
 from softforce_cli.fem.attachment import Attachment
-from softforce_cli.fem.compliance import Compliance, Linearization, linearize
-from softforce_cli.fem.coordinates import Factor
+from softforce_cli.fem.compliance import Compliance, Linearization, linearize_state, rows_at
+from softforce_cli.fem.coordinates import Factor, State
 from softforce_cli.fem.model import FEModel
 
 
 class LinearizedModel:
     """K(x0) factorised, the free motion and the cable responses at x0, and the contact
-    responses solved so far.
+    responses solved so far, all in the model's coordinates (c of them).
 
-    origin_mm (n, 3) is x0; free_mm (n, 3) the free motion K0^-1 (f_ext - g(x0)) at the
-    nodes; cable_rows (a, 3n) H_a at x0; cable_responses (3n, a) K0^-1 H_a^T (mm/N).
+    origin is x0 (a State); free (c,) the free motion K0^-1 (f_ext - g(x0)); cable_rows
+    (a, c) H_a T at x0; cable_responses (c, a) K0^-1 (H_a T)^T (mm/N); watched_nodes (k,)
+    the nodes moved_mm measures (all of them by default).
     """
 
-    def __init__(self, model: FEModel, positions_mm: np.ndarray, tensions_n: np.ndarray,
-                 factorization: Factor | None = None) -> None:
+    def __init__(self, model: FEModel, origin: State, tensions_n: np.ndarray,
+                 factorization: Factor | None = None,
+                 watched_nodes: np.ndarray | None = None) -> None:
         self.model = model
-        self.linearization: Linearization = linearize(model, positions_mm, tensions_n,
-                                                      factorization=factorization)
-        self.origin_mm = np.asarray(positions_mm, dtype=float)
-        self.free_mm = self.linearization.free_motion_mm
-        self.cable_rows = model.cable_jacobian(self.origin_mm)
-        self.cable_responses = self.linearization.responses(self.cable_rows)
-        self.shortenings_mm = model.cable_shortenings(self.origin_mm)
+        self.linearization: Linearization = linearize_state(model, origin, tensions_n,
+                                                            factorization=factorization)
+        self.origin = origin
+        self.free = self.linearization.free_motion
+        self.shortenings_mm, self.cable_rows = origin.cables()
+        self.cable_responses = self.linearization.factorization.solve(self.cable_rows.T)
+        self.watched_nodes = (np.arange(model.node_count) if watched_nodes is None
+                              else np.asarray(watched_nodes, dtype=np.int64))
+        self._watched_mm = origin.nodes_mm(self.watched_nodes)
         self._node_responses: dict[int, np.ndarray] = {}
         self._point_responses: dict[bytes, np.ndarray] = {}
 
@@ -56,16 +65,17 @@ class LinearizedModel:
     def factorization(self) -> Factor:
         return self.linearization.factorization
 
-    def moved_mm(self, positions_mm: np.ndarray) -> float:
-        """The largest node distance (mm) between positions (n, 3) and x0."""
-        return float(np.sqrt(np.max(np.sum((positions_mm - self.origin_mm) ** 2, axis=1))))
+    def moved_mm(self, watched_mm: np.ndarray) -> float:
+        """The largest distance (mm) between the watched nodes' positions (k, 3) at a
+        configuration and at x0."""
+        return float(np.sqrt(np.max(np.sum((watched_mm - self._watched_mm) ** 2, axis=1))))
 
     @property
     def cached_nodes(self) -> int:
         return len(self._node_responses)
 
     def force_responses(self, points: Attachment, directions: np.ndarray) -> np.ndarray:
-        """K0^-1 H_f^T (3n, f) mm/N for unit forces along directions (f, 3) at points (f).
+        """K0^-1 (H_f T)^T (c, f) mm/N for unit forces along directions (f, 3) at points (f).
 
         Points at a node (Attachment.at_nodes) combine that node's cached x, y, z responses;
         other points cache the column of their exact row.
@@ -76,10 +86,10 @@ class LinearizedModel:
         missing = np.unique([n for n in node_of[single] if int(n) not in self._node_responses])
         if len(missing):
             rows = Attachment.at_nodes(missing).cartesian_rows(node_count)
-            solved = self.linearization.responses(rows)  # (3n, 3m): x, y, z of each node
+            solved = self.linearization.solve_rows(rows)  # (c, 3m): x, y, z of each node
             for k, node in enumerate(missing):
                 self._node_responses[int(node)] = solved[:, 3 * k: 3 * k + 3]
-        columns = np.empty((3 * node_count, len(points)))
+        columns = np.empty((len(self.free), len(points)))
         for j in range(len(points)):
             direction = np.asarray(directions[j], dtype=float)
             if single[j]:
@@ -88,27 +98,27 @@ class LinearizedModel:
             row = points.subset(np.array([j])).directional_rows(direction[None], node_count)
             key = row.indices.tobytes() + row.data.tobytes()
             if key not in self._point_responses:
-                self._point_responses[key] = self.linearization.responses(row)[:, 0]
+                self._point_responses[key] = self.linearization.solve_rows(row)[:, 0]
             columns[:, j] = self._point_responses[key]
         return columns
 
     def compliance(self, effectors: sp.spmatrix, force_responses: np.ndarray) -> Compliance:
         """The matrices of eq. 3-5 at x0 for effector rows H_e (e, 3n) (the current normals)
-        and the force responses (3n, f) of force_responses()."""
+        and the force responses (c, f) of force_responses()."""
+        projected = self.model.coordinates.project_rows(effectors)  # H_e T (e, c)
         cables = self.cable_responses
-        reached = self.origin_mm.ravel() + self.free_mm.ravel()
         return Compliance(
-            W_ea=np.asarray(effectors @ cables),
-            W_ef=np.asarray(effectors @ force_responses),
+            W_ea=np.asarray(projected @ cables),
+            W_ef=np.asarray(projected @ force_responses),
             W_aa=self.cable_rows @ cables,
             W_af=self.cable_rows @ force_responses,
-            delta_e_free=np.asarray(effectors @ reached),
-            delta_a_free=self.shortenings_mm + self.cable_rows @ self.free_mm.ravel(),
+            delta_e_free=np.asarray(rows_at(effectors, self.origin) + projected @ self.free),
+            delta_a_free=self.shortenings_mm + self.cable_rows @ self.free,
         )
 
     def configuration(self, tensions_n: np.ndarray, force_responses: np.ndarray,
-                      forces_n: np.ndarray) -> np.ndarray:
-        """(n, 3) mm: x0 + dx_free + Z_a lam_a + Z_f lam_f, the linear model's configuration
-        under cable tensions (a,) and contact forces (f,) along the columns."""
-        step = self.cable_responses @ tensions_n + force_responses @ forces_n
-        return self.origin_mm + self.free_mm + step.reshape(-1, 3)
+                      forces_n: np.ndarray) -> State:
+        """x0 + dx_free + Z_a lam_a + Z_f lam_f: the linear model's configuration under cable
+        tensions (a,) and contact forces (f,) along the columns of force_responses (c, f)."""
+        step = self.free + self.cable_responses @ tensions_n + force_responses @ forces_n
+        return self.origin.moved(step, 1.0)

@@ -27,13 +27,19 @@ from softforce_cli.estimation.results import ContactEstimate, FrameEstimate
 from softforce_cli.estimation.settings import SenseSettings
 from softforce_cli.estimation.tracking import ContactTracker
 from softforce_cli.fem.attachment import Attachment
+from softforce_cli.fem.coordinates import State
 from softforce_cli.fem.statics import solve_equilibrium
 from softforce_cli.model.mesh import vertex_normals
 from softforce_cli.model.robot import Robot
 from softforce_cli.vision.contacts import nearest_features, object_axes
 from softforce_cli.vision.feature_matching import FeatureMatches, match_features
 from softforce_cli.vision.filters import crop_box_from_bounds
-from softforce_cli.vision.pipeline import VisionResult, process_frame
+from softforce_cli.vision.pipeline import (
+    Observation,
+    VisionResult,
+    match_observation,
+    observe_frame,
+)
 from softforce_cli.vision.point_cloud import cloud_from_frame
 from softforce_cli.vision.segmentation import Segmentation, learn_robot_colour
 from softforce_cli.vision.settings import VisionSettings
@@ -109,9 +115,12 @@ class ForceSensor:
         self.controls = tuple(spec.control for spec in robot.cable_specs)
         self.actuation = np.asarray(start_actuation, dtype=float)
         self.linear: LinearizedModel | None = None
+        # the mesh's nodes: all the sensor looks at (surface, features, contacts); a reduced
+        # model forms their positions alone (fem.coordinates State.nodes_mm)
+        self.mesh_nodes = np.arange(robot.mesh.node_count)
+        self._geometry_of: State | None = None
+        self._geometry = (np.zeros((0, 3)), np.zeros((0, 3)))
         self.restart()
-        self._normals_at: np.ndarray | None = None
-        self._normals = np.zeros((0, 3))
         self.relinearizations = 0
         # the first frame's fit: the model's own offset from the robot (P1 locks: 10 mm and
         # more), which a lost model's fit is measured above
@@ -129,6 +138,8 @@ class ForceSensor:
         clamped = robot.mesh.nodes_mm[robot.fixed_nodes]
         self.clamped_box = np.r_[clamped.min(axis=0), clamped.max(axis=0)]
         self.table_plane: tuple[np.ndarray, float] | None = None
+        # the crop box observe() uses: the mesh's bounds where the last process() left it
+        self.crop_bounds_mm = self._bounds()
         if known_contact is not None:
             point = np.asarray(known_contact.rest_point_mm, dtype=float)[None]
             self.known_points = robot.attach(point)
@@ -137,31 +148,58 @@ class ForceSensor:
         """Move the FE configuration to the unloaded equilibrium at the current actuation
         (where sensing starts, and starts again when it has lost the robot)."""
         start = solve_equilibrium(self.model, self.robot.cable_inputs(self.actuation))
-        self.positions = start.positions_mm
+        self.state: State = self.model.coordinates.state(start.positions_mm)
         self.tensions = start.cable_tensions_n
         self.linear = None
 
+    def mesh_geometry(self) -> tuple[np.ndarray, np.ndarray]:
+        """(m, 3) mm positions and (m, 3) outward unit normals (zero inside) of the robot
+        mesh's nodes at the configuration, computed once per configuration (matching, force
+        columns and reports all need them)."""
+        if self._geometry_of is not self.state:
+            positions = self.state.nodes_mm(self.mesh_nodes)
+            self._geometry = (positions, vertex_normals(positions, self.robot.mesh.surface_faces))
+            self._geometry_of = self.state
+        return self._geometry
+
     def node_normals(self) -> np.ndarray:
-        """(n, 3) outward unit normals of the mesh's nodes at the configuration, computed once
-        per configuration (matching, force columns and reports all need them)."""
-        if self._normals_at is not self.positions:
-            mesh = self.robot.mesh
-            self._normals = vertex_normals(self.positions[: mesh.node_count], mesh.surface_faces)
-            self._normals_at = self.positions
-        return self._normals
+        """(m, 3) outward unit normals of the mesh's nodes at the configuration."""
+        return self.mesh_geometry()[1]
 
     def feature_geometry(self) -> tuple[np.ndarray, np.ndarray]:
         """Feature positions (p, 3) mm and outward unit normals (p, 3) at the configuration."""
         features = self.robot.feature_nodes
-        return self.positions[features], self.node_normals()[features]
+        positions, normals = self.mesh_geometry()
+        return positions[features], normals[features]
 
-    def process(self, index: int, frame: RgbdFrame) -> FrameEstimate:
-        """Estimate the contacts of one frame and move the FE configuration to it."""
+    def attached_mm(self, points: Attachment) -> np.ndarray:
+        """(p, 3) mm: the positions of attached points at the configuration."""
+        nodes = np.unique(points.node_indices)
+        positions = np.zeros((self.model.node_count, 3))
+        positions[nodes] = self.state.nodes_mm(nodes)
+        return points.positions(positions)
+
+    def process(self, index: int, frame: RgbdFrame,
+                observation: Observation | None = None) -> FrameEstimate:
+        """Estimate the contacts of one frame and move the FE configuration to it, from the
+        frame's observation when it was made ahead (observe()), else observing it here."""
+        try:
+            return self._process(index, frame, observation)
+        finally:
+            self.crop_bounds_mm = self._bounds()
+
+    def _process(self, index: int, frame: RgbdFrame,
+                 observation: Observation | None) -> FrameEstimate:
         timings: dict[str, float] = {}
         time_s = frame.time_ns * 1e-9
         if frame.actuation is not None:
             self.actuation = np.asarray(frame.actuation.values, dtype=float)
-        vision = self._vision(frame)
+        if self.robot_rgb is None:
+            self.robot_rgb = learned_robot_colour(frame, self.transform, self.mesh_geometry()[0],
+                                                  self.robot.mesh.surface_nodes,
+                                                  self.settings.vision)
+        positions, normals = self.feature_geometry()
+        vision = match_observation(observation or self.observe(frame), positions, normals)
         timings.update({k: v for k, v in vision.timings_ms.items() if k != "total"})
         segmentation = vision.segmentation
         counts = dict(points_kept=len(vision.cloud), robot_points=len(segmentation.robot),
@@ -176,12 +214,12 @@ class ForceSensor:
         contact_nodes, axes = (np.zeros(0, np.int64), np.zeros((0, 3))) if taring \
             else self._contact_nodes(vision)
         clock = _Clock(timings)
-        saved = (self.positions, self.tensions)
+        saved = (self.state, self.tensions)
         try:
             outcome = self.settle(vision.matches, lambda: self._match(segmentation),
                                   contact_nodes, clock, axes)
         except SolverError:
-            self.positions, self.tensions = saved
+            self.state, self.tensions = saved
             self.linear = None
             return FrameEstimate(index, time_s, "solver", timings_ms=timings, **counts)
         if outcome is None:
@@ -193,7 +231,7 @@ class ForceSensor:
             try:
                 self.restart()
             except SolverError:
-                self.positions, self.tensions = saved
+                self.state, self.tensions = saved
                 self.linear = None
             return FrameEstimate(index, time_s, "lost", timings_ms=timings, **counts,
                                  fit_rms_mm=fit_rms_mm)
@@ -230,34 +268,38 @@ class ForceSensor:
             if outcome is not None:
                 matches = rematch()
                 clock.lap("matching")
-            matched_at = self.positions[self.robot.feature_nodes]
+            matched_at = self.feature_geometry()[0]
             update = self.update(matches, contact_nodes, clock, taring, contact_axes)
             if update is None:
                 break
             outcome = update
-            moved = np.linalg.norm(self.positions[self.robot.feature_nodes] - matched_at,
+            moved = np.linalg.norm(self.feature_geometry()[0] - matched_at,
                                    axis=1).max(initial=0.0)
             if moved <= self.settings.estimation.rematch_mm:
                 break  # matching again would find the same points: the frame is done
         return outcome
 
-    def _vision(self, frame: RgbdFrame) -> VisionResult:
-        """The vision stage at the current configuration (the robot's colour learned on the
-        first frame unless given)."""
-        nodes = self.positions[: self.robot.mesh.node_count]
-        bounds = np.array([nodes.min(axis=0), nodes.max(axis=0)])
-        if self.robot_rgb is None:
-            self.robot_rgb = learned_robot_colour(frame, self.transform, nodes,
-                                                  self.robot.mesh.surface_nodes,
-                                                  self.settings.vision)
-        positions, normals = self.feature_geometry()
+    def observe(self, frame: RgbdFrame) -> Observation:
+        """The frame's vision stages that need no feature geometry (vision.pipeline
+        observe_frame), in the crop box of the configuration the last process() left and the
+        table found before. Once the robot's colour is known (after the first process()),
+        another thread may call this for the next frame while process() runs: it reads
+        nothing process() changes but crop_bounds_mm, which process() replaces whole."""
         # the camera is fixed to the table (its pose is calibrated): the table found on one
         # frame is the table of the next
-        result = process_frame(frame.depth_mm, frame.color, frame.intrinsics, self.transform,
-                               bounds, positions, normals, self.robot_rgb, self.settings.vision,
-                               self.clamped_box, self.table_plane)
-        self.table_plane = result.table_plane
-        return result
+        if self.robot_rgb is None:
+            raise RuntimeError("observe() before the first process(): the robot's colour is "
+                               "not known yet")
+        observation = observe_frame(frame.depth_mm, frame.color, frame.intrinsics,
+                                    self.transform, self.crop_bounds_mm, self.robot_rgb,
+                                    self.settings.vision, self.clamped_box, self.table_plane)
+        self.table_plane = observation.table_plane
+        return observation
+
+    def _bounds(self) -> np.ndarray:
+        """(2, 3) mm [min, max] of the mesh at the configuration."""
+        nodes = self.mesh_geometry()[0]
+        return np.array([nodes.min(axis=0), nodes.max(axis=0)])
 
     def _match(self, segmentation: Segmentation) -> FeatureMatches:
         positions, normals = self.feature_geometry()
@@ -278,7 +320,7 @@ class ForceSensor:
             nodes = self.robot.feature_nodes[vision.contact_features]
         else:
             surface = self.robot.mesh.surface_nodes
-            _, nearest = cKDTree(self.positions[surface]).query(centres)
+            _, nearest = cKDTree(self.mesh_geometry()[0][surface]).query(centres)
             nodes = surface[np.asarray(nearest, dtype=np.int64)]
         nodes, first = np.unique(nodes, return_index=True)
         if self.settings.estimation.force_model != "axis":
@@ -358,8 +400,8 @@ class ForceSensor:
                                      self.settings.estimation.regularization)
         clock.lap("qp")
         # eq. 6 at the linearisation x0: x <- x0 + dx_free + K0^-1 (H_a^T lam_a + H_f^T lam_f)
-        self.positions = linear.configuration(solution.cable_tensions_n, responses,
-                                              solution.contact_forces_n)
+        self.state = linear.configuration(solution.cable_tensions_n, responses,
+                                          solution.contact_forces_n)
         self.tensions = solution.cable_tensions_n
         clock.lap("update")
         return Update(matches, columns, solution.contact_forces_n, solution.residual_mm)
@@ -370,16 +412,17 @@ class ForceSensor:
         (K and the internal forces at the current x: a Newton step)."""
         linear = self.linear
         tolerance = self.settings.estimation.relinearize_mm
-        if linear is None or linear.moved_mm(self.positions) > tolerance:
+        if linear is None or linear.moved_mm(self.mesh_geometry()[0]) > tolerance:
             self.linear = linear = LinearizedModel(
-                self.model, self.positions, self.tensions,
-                factorization=None if linear is None else linear.factorization)
+                self.model, self.state, self.tensions,
+                factorization=None if linear is None else linear.factorization,
+                watched_nodes=self.mesh_nodes)
             self.relinearizations += 1
         return linear
 
     def _contacts(self, update: Update) -> tuple[ContactEstimate, ...]:
         columns = update.columns
-        points = columns.points.positions(self.positions)
+        points = self.attached_mm(columns.points)
         feature_positions, _ = self.feature_geometry()
         matched_positions = feature_positions[update.matches.matched]
         positions = np.array([points[group[0]] for group in columns.groups]).reshape(-1, 3)

@@ -9,10 +9,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
+from contextlib import nullcontext
 from dataclasses import dataclass
 from typing import Any
 
+from threadpoolctl import threadpool_limits
+
 from softforce_cli.camera.frame import RgbdFrame
+from softforce_cli.estimation.lookahead import observed_frames
 from softforce_cli.estimation.results import FrameEstimate
 from softforce_cli.estimation.sensing import ForceSensor
 from softforce_cli.estimation.summary import SenseSummary
@@ -63,29 +67,40 @@ def run_sensing(
     force: bool = False,
     on_frame: FrameCallback | None = None,
     stop_requested: Callable[[], bool] = lambda: False,
+    look_ahead: bool = True,
 ) -> SenseSummary:
-    """Process every frame into `folder`. The run ends after the frame during which
-    stop_requested() turns true, or at a KeyboardInterrupt, with its files complete."""
+    """Process every frame into `folder`, each frame's vision made while the model settles
+    on the one before (estimation.lookahead) unless look_ahead is False. The run ends after
+    the frame during which stop_requested() turns true, or at a KeyboardInterrupt, with its
+    files complete."""
     summary = SenseSummary()
     writer = SenseWriter(folder, header, force=force)
+    stream = observed_frames(frames, sensor) if look_ahead else (
+        (*item, None) for item in frames)
+    # the look-ahead's two threads keep both cores busy: BLAS threads on top would only
+    # contend for them (the reduced P2 model's frames took 2.6 times as long, docs/sensing.md)
+    blas = threadpool_limits(limits=1, user_api="blas") if look_ahead else nullcontext()
     began = time.perf_counter()
-    try:
-        for index, frame, decode_ms in frames:
-            estimate = sensor.process(index, frame)
-            estimate.timings_ms["decode"] = decode_ms
-            summary.add(estimate)
+    with blas:
+        try:
+            for index, frame, decode_ms, observation in stream:
+                estimate = sensor.process(index, frame, observation)
+                estimate.timings_ms["decode"] = decode_ms
+                summary.add(estimate)
+                summary.wall_s = time.perf_counter() - began
+                written = time.perf_counter()
+                writer.write(estimate, summary.to_dict())
+                summary.add_write_ms(1e3 * (time.perf_counter() - written))
+                summary.frame_done(time.perf_counter())
+                if on_frame is not None:
+                    on_frame(estimate, summary)
+                if stop_requested():
+                    summary.interrupted = True
+                    break
+        except KeyboardInterrupt:
+            summary.interrupted = True
+        finally:
+            stream.close()  # stops the look-ahead's worker
             summary.wall_s = time.perf_counter() - began
-            written = time.perf_counter()
-            writer.write(estimate, summary.to_dict())
-            summary.add_write_ms(1e3 * (time.perf_counter() - written))
-            if on_frame is not None:
-                on_frame(estimate, summary)
-            if stop_requested():
-                summary.interrupted = True
-                break
-    except KeyboardInterrupt:
-        summary.interrupted = True
-    finally:
-        summary.wall_s = time.perf_counter() - began
-        writer.close(summary.to_dict())
+            writer.close(summary.to_dict())
     return summary

@@ -67,10 +67,11 @@ class EstimationSettings:
                          same points. In a steady state one update per frame then suffices.
     relinearize_mm     : 0.5; the FE model is linearised again (K(x) assembled and
                          factorised, the internal forces at x: a Newton step) when an update
-                         has moved a node more than this from the configuration of the last
-                         linearisation; between, the compliance and the configuration come
-                         from that linearisation (estimation.linear_model). 0 relinearises at
-                         every update (the paper's eq. 6). With P2 on the 640x480 probes of
+                         has moved a vertex of the mesh more than this from the configuration
+                         of the last linearisation; between, the compliance and the
+                         configuration come from that linearisation
+                         (estimation.linear_model). 0 relinearises at every update (the
+                         paper's eq. 6). With P2 on the 640x480 probes of
                          benchmarks/bench_sense.py, 0.5 mm keeps the intensity errors of 0
                          (median 32% vs 30%) with 46 linearisations in 40 frames instead of
                          80; 2 mm (8) doubles them. P1 moves less: 3 in 40 frames.

@@ -32,6 +32,10 @@ class SenseSummary:
     last_time_s: float | None = None
     wall_s: float = 0.0
     interrupted: bool = False
+    # wall time between one frame's results and the next's (ms): the rate frames come out at,
+    # which with the look-ahead (estimation.lookahead) is less than a frame's stage times
+    interval_ms: list[float] = field(default_factory=list)
+    _last_done_s: float | None = None
 
     def add(self, estimate: FrameEstimate) -> None:
         self.frames += 1
@@ -53,6 +57,12 @@ class SenseSummary:
 
     def add_write_ms(self, milliseconds: float) -> None:
         self.stage_ms["write"].append(milliseconds)
+
+    def frame_done(self, wall_s: float) -> None:
+        """A frame's results are out at wall_s (s, any fixed origin)."""
+        if self._last_done_s is not None:
+            self.interval_ms.append(1e3 * (wall_s - self._last_done_s))
+        self._last_done_s = wall_s
 
     @property
     def frames_per_s(self) -> float:
@@ -77,5 +87,7 @@ class SenseSummary:
             "wall_s": round(self.wall_s, 3),
             "frames_per_s": round(self.frames_per_s, 2) if self.wall_s > 0 else None,
             "median_total_ms": round(float(np.median(totals)), 3) if self.frames else None,
+            "median_interval_ms": (round(float(np.median(self.interval_ms)), 3)
+                                   if self.interval_ms else None),
             "median_stage_ms": {k: round(v, 3) for k, v in self.stage_medians_ms().items()},
         }

@@ -18,16 +18,17 @@ import numpy as np
 import scipy.sparse as sp
 
 from softforce_cli.fem.attachment import Attachment
-from softforce_cli.fem.coordinates import Factor
+from softforce_cli.fem.coordinates import Factor, State
 from softforce_cli.fem.model import FEModel
 from softforce_cli.fem.statics import PointLoads
 
 
 @dataclass(frozen=True)
 class Linearization:
-    """The model linearised at a configuration x.
+    """The model linearised at a configuration.
 
-    positions_mm     : (n, 3) the configuration.
+    state            : the configuration (fem.coordinates State); positions_mm (n, 3) are its
+                       node positions (a reduced model lifts them when first asked for).
     cable_tensions_n : (a,) cable forces whose geometric stiffness is in K.
     free_motion      : (c,) K^-1 (f_ext - g(x)) in the model's coordinates (fem.coordinates);
                        free_motion_mm is it as node motions (n, 3): where the nodes go, to
@@ -37,10 +38,14 @@ class Linearization:
     """
 
     model: FEModel
-    positions_mm: np.ndarray
+    state: State
     cable_tensions_n: np.ndarray
     free_motion: np.ndarray
     factorization: Factor
+
+    @property
+    def positions_mm(self) -> np.ndarray:
+        return self.state.positions_mm
 
     @cached_property
     def free_motion_mm(self) -> np.ndarray:
@@ -66,16 +71,40 @@ def linearize(
     loads: PointLoads | None = None,
     factorization: Factor | None = None,
 ) -> Linearization:
-    """Assemble and factorise K(x) (elastic + cable geometric stiffness) and the free motion.
+    """Assemble and factorise K(x) (elastic + cable geometric stiffness) and the free motion
+    at node positions (n, 3) (a reduced model's: the nearest configuration in its span).
 
     Pass the previous Linearization's factorization to reuse its symbolic analysis.
     """
+    return linearize_state(model, model.coordinates.state(positions_mm), cable_tensions_n,
+                           loads, factorization)
+
+
+def linearize_state(
+    model: FEModel,
+    state: State,
+    cable_tensions_n: np.ndarray | None = None,
+    loads: PointLoads | None = None,
+    factorization: Factor | None = None,
+) -> Linearization:
+    """linearize() at a configuration given as a State of the model's coordinates (as a
+    sensing loop holds it: a reduced model then never forms all the node positions)."""
     tensions = np.zeros(len(model.cables)) if cable_tensions_n is None else cable_tensions_n
     space = model.coordinates
-    internal, tangent = space.forces_and_tangent(positions_mm, tensions)
+    internal, tangent = state.forces_and_tangent(tensions)
     factor = space.factorize(tangent, factorization)
     motion = factor.solve(space.project_loads(loads) - internal)
-    return Linearization(model, positions_mm, tensions, motion, factor)
+    return Linearization(model, state, tensions, motion, factor)
+
+
+def rows_at(rows, state: State) -> np.ndarray:
+    """H x (k,) for rows H (k, 3n) (dense or sparse) at a configuration, from the positions of
+    the few nodes the rows touch."""
+    rows = sp.csr_matrix(rows)
+    nodes = np.unique(rows.indices // 3)
+    local = 3 * np.searchsorted(nodes, rows.indices // 3) + rows.indices % 3
+    touched = sp.csr_matrix((rows.data, local, rows.indptr), shape=(rows.shape[0], 3 * len(nodes)))
+    return touched @ state.nodes_mm(nodes).ravel()
 
 
 @dataclass(frozen=True)
@@ -117,12 +146,10 @@ def compliance(
     Worked in the model's coordinates (W_ij = (H_i T) K^-1 (H_j T)^T), so a reduced model
     never lifts its solutions to the nodes.
     """
-    model = linearization.model
-    space = model.coordinates
-    positions = linearization.positions_mm.ravel()
+    space = linearization.model.coordinates
     # the cables' rows come projected (H_a T, from the few nodes they touch): neither a
     # dense (a, 3n) row array nor its sparse copy is formed
-    shortenings, projected_a = space.cables(linearization.positions_mm)
+    shortenings, projected_a = linearization.state.cables()
     projected_f = space.project_rows(forces)
     projected_f = projected_f.toarray() if sp.issparse(projected_f) else projected_f
     a = len(projected_a)
@@ -134,6 +161,7 @@ def compliance(
         W_ef=np.asarray(projected_e @ solved[:, a:]),
         W_aa=projected_a @ solved[:, :a],
         W_af=projected_a @ solved[:, a:],
-        delta_e_free=np.asarray(effectors @ positions + projected_e @ free_motion),
+        delta_e_free=np.asarray(rows_at(effectors, linearization.state)
+                                + projected_e @ free_motion),
         delta_a_free=shortenings + projected_a @ free_motion,
     )

@@ -12,7 +12,9 @@ fem.statics and fem.compliance are written once against this protocol: residuals
 T^T (f_ext - g(x) + H^T lam), cable rows are H T, and a solution dq lifts to T dq. A static
 solve moves through `State`s, configurations that evaluate forces, tangent and cables from q
 without forming the node positions (a reduced model's lift V q reads all of V, more than
-the rest of an evaluation), and lifts once at the end.
+the rest of an evaluation), and lifts once at the end. A sensing loop holds its
+configuration as a State too (estimation.linear_model) and asks it for the few nodes it
+looks at (State.nodes_mm), so a reduced model never lifts there.
 """
 
 from __future__ import annotations
@@ -59,8 +61,17 @@ class State(Protocol):
         energy_and_forces)."""
         ...
 
+    def forces_and_tangent(self, tensions_n: np.ndarray):
+        """T^T g(x) (c,) N and T^T (K(x) + K_cables) T (c, c) N/mm: a linearisation's two
+        evaluations in one pass of the law."""
+        ...
+
     def cables(self) -> tuple[np.ndarray, np.ndarray]:
         """Cable shortenings (a,) mm and their rows H T (a, c), dense."""
+        ...
+
+    def nodes_mm(self, nodes: np.ndarray) -> np.ndarray:
+        """(k, 3) mm: the positions of some nodes (k,), without lifting the others."""
         ...
 
 
@@ -193,7 +204,13 @@ class NodalState:
         return self.space.energy_and_forces(self.positions_mm)
 
     def tangent(self, tensions_n: np.ndarray) -> sp.csr_matrix:
-        return self.space.forces_and_tangent(self.positions_mm, tensions_n)[1]
+        return self.forces_and_tangent(tensions_n)[1]
+
+    def forces_and_tangent(self, tensions_n: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+        return self.space.forces_and_tangent(self.positions_mm, tensions_n)
 
     def cables(self) -> tuple[np.ndarray, np.ndarray]:
         return self.space.cables(self.positions_mm)
+
+    def nodes_mm(self, nodes: np.ndarray) -> np.ndarray:
+        return self.positions_mm[nodes]

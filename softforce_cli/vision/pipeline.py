@@ -3,7 +3,10 @@
 table plane (fitted on a sample of the crop) -> cloud (crop, PassThrough, and table removal
 while back-projecting) -> VoxelGrid -> RadiusOutlier -> colour segmentation -> contacts
 (Algorithm 2, and the elongated objects whose tip is hidden) -> feature matching (Algorithm
-3), each stage timed. The table goes before the VoxelGrid, unlike the other filters' paper
+3), each stage timed. Up to the contacts the stages need nothing of the FE model but a crop
+box (observe_frame); the nearest features and the matching need the current feature
+geometry (match_observation), so a sensor can run the first part of the next frame while
+its model settles on this one. The table goes before the VoxelGrid, unlike the other filters' paper
 order: it is most of the points in the crop box, and every later stage costs less without it.
 """
 
@@ -33,6 +36,27 @@ from softforce_cli.vision.settings import VisionSettings, settings_for_camera
 # pixels, still thousands of table points, so RANSAC and the least-squares refit lose nothing.
 TABLE_STRIDE = 3
 STAGES = ("table", "cloud", "voxel", "outliers", "segmentation", "contacts", "matching")
+
+
+@dataclass(frozen=True, eq=False)
+class Observation:
+    """What one frame shows, before the model is consulted: the stages up to the contacts,
+    which depend on the FE configuration only through the crop box.
+
+    cloud       : the filtered cloud that was segmented.
+    table_plane : (unit normal (3,), offset) of the removed table, or None.
+    settings    : the vision settings used (scaled to the camera), which matching uses too.
+    camera_mm   : (3,) the camera's position (robot frame).
+    timings_ms  : milliseconds per stage (STAGES up to "contacts").
+    """
+
+    cloud: PointCloud
+    segmentation: Segmentation
+    contacts: DetectedContacts
+    table_plane: tuple[np.ndarray, float] | None
+    settings: VisionSettings
+    camera_mm: np.ndarray
+    timings_ms: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,7 +91,7 @@ def process_frame(
     excluded_box_mm: np.ndarray | None = None,
     table_plane: tuple[np.ndarray, float] | None = None,
 ) -> VisionResult:
-    """One frame through the vision stage.
+    """One frame through the vision stage: observe_frame, then match_observation.
 
     depth_mm (h, w) uint16, color (h, w, 3) uint8; model_bounds_mm (2, 3) [min, max] of the
     model's current shape (robot frame); feature_positions_mm (p, 3) and feature_normals
@@ -77,6 +101,26 @@ def process_frame(
     table_plane: a previous frame's VisionResult.table_plane, to skip fitting it again when
     the camera does not move (saves 2-5 ms a frame); None fits it on this frame.
     """
+    observation = observe_frame(depth_mm, color, intrinsics, robot_from_camera,
+                                model_bounds_mm, robot_rgb, settings, excluded_box_mm,
+                                table_plane)
+    return match_observation(observation, feature_positions_mm, feature_normals)
+
+
+def observe_frame(
+    depth_mm: np.ndarray,
+    color: np.ndarray,
+    intrinsics: CameraIntrinsics,
+    robot_from_camera: RigidTransform,
+    model_bounds_mm: np.ndarray,
+    robot_rgb: np.ndarray,
+    settings: VisionSettings = VisionSettings(),
+    excluded_box_mm: np.ndarray | None = None,
+    table_plane: tuple[np.ndarray, float] | None = None,
+) -> Observation:
+    """The stages of process_frame (same arguments) that need no feature geometry: table,
+    cloud, filters, segmentation, contacts. A sensor runs them on the next frame while its FE
+    model settles on this one (estimation.lookahead)."""
     clock = _Clock()
     if settings.scale_to_camera:
         settings = settings_for_camera(settings, intrinsics.fx)
@@ -108,30 +152,40 @@ def process_frame(
     clock.lap("outliers")
     segmentation = segment_robot(cloud, robot_rgb, settings, pairs)
     clock.lap("segmentation")
-    contacts = detect_contacts(segmentation, settings, excluded_box_mm,
-                               camera_mm=robot_from_camera.translation_mm)
-    contact_features = nearest_features(contacts.centres_mm, feature_positions_mm)
+    camera_mm = robot_from_camera.translation_mm
+    contacts = detect_contacts(segmentation, settings, excluded_box_mm, camera_mm=camera_mm)
+    clock.lap("contacts")
+    return Observation(cloud, segmentation, contacts, plane, settings, camera_mm, clock.laps)
+
+
+def match_observation(observation: Observation, feature_positions_mm: np.ndarray,
+                      feature_normals: np.ndarray) -> VisionResult:
+    """The rest of process_frame at the current feature geometry (p, 3), (p, 3): each
+    contact's nearest feature and the feature matching (Algorithm 3)."""
+    clock = _Clock()
+    contact_features = nearest_features(observation.contacts.centres_mm, feature_positions_mm)
     clock.lap("contacts")
     matches = match_features(feature_positions_mm, feature_normals,
-                             segmentation.robot.points_mm, settings,
-                             camera_mm=robot_from_camera.translation_mm,
-                             robot_tree=segmentation.robot_tree)
+                             observation.segmentation.robot.points_mm, observation.settings,
+                             camera_mm=observation.camera_mm,
+                             robot_tree=observation.segmentation.robot_tree)
     clock.lap("matching")
-    return VisionResult(cloud, segmentation, contacts, contact_features, matches, plane,
-                        clock.timings())
+    timings = dict(observation.timings_ms)
+    timings["contacts"] += clock.laps["contacts"]
+    timings["matching"] = clock.laps["matching"]
+    timings["total"] = sum(timings.values())
+    return VisionResult(observation.cloud, observation.segmentation, observation.contacts,
+                        contact_features, matches, observation.table_plane, timings)
 
 
 class _Clock:
     """Milliseconds between successive laps."""
 
     def __init__(self) -> None:
-        self.start = self.last = time.perf_counter()
+        self.last = time.perf_counter()
         self.laps: dict[str, float] = {}
 
     def lap(self, name: str) -> None:
         now = time.perf_counter()
         self.laps[name] = 1e3 * (now - self.last)
         self.last = now
-
-    def timings(self) -> dict[str, float]:
-        return {**self.laps, "total": 1e3 * (self.last - self.start)}

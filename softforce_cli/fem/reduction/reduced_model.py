@@ -43,6 +43,10 @@ from softforce_cli.fem.reduction.tangent import TANGENT_DTYPE, ReducedTangent
 BOX_MARGIN = 0.1
 # External forces (besides gravity) beyond this multiple of the largest trained one warn.
 FORCE_MARGIN = 1.5
+# node_rows keeps the rows of V for node sets of at least this many nodes, the last few sets
+# (a sensor asks for its mesh's nodes every update; a handful of nodes costs nothing to gather)
+KEPT_NODE_ROWS_FROM = 64
+KEPT_NODE_SETS = 4
 
 
 class ReducedModelWarning(UserWarning):
@@ -224,6 +228,7 @@ class ReducedCoordinates:
         self.support_dofs = full.element_dofs[supports]
         # projected once: reading V (3n, r) costs more than the whole hyper-reduced update
         self.gravity = self.basis.T @ full.gravity_forces_n.ravel()
+        self._node_rows: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 
     @property
     def size(self) -> int:
@@ -231,6 +236,22 @@ class ReducedCoordinates:
 
     def lift(self, values: np.ndarray) -> np.ndarray:
         return self.basis @ values
+
+    def node_rows(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(k, 3) rest positions and (3k, r) rows of V at nodes (k,): the nodes' positions are
+        rest + V_k q. The rows of the node sets asked for again and again (a sensor's mesh
+        nodes) are kept."""
+        nodes = np.asarray(nodes, dtype=np.int64)
+        key = nodes.tobytes()
+        if key in self._node_rows:
+            return self._node_rows[key]
+        dofs = (3 * nodes[:, None] + np.arange(3)).ravel()
+        found = (self.rest[nodes], np.ascontiguousarray(self.basis[dofs]))
+        if len(nodes) >= KEPT_NODE_ROWS_FROM:
+            if len(self._node_rows) >= KEPT_NODE_SETS:
+                self._node_rows.pop(next(iter(self._node_rows)))
+            self._node_rows[key] = found
+        return found
 
     def project(self, vectors: np.ndarray) -> np.ndarray:
         return self.basis.T @ vectors
@@ -281,14 +302,14 @@ class ReducedCoordinates:
     def forces_and_tangent(self, positions_mm: np.ndarray, tensions_n: np.ndarray
                            ) -> tuple[np.ndarray, np.ndarray]:
         positions = np.asarray(positions_mm)
-        return self._forces_and_tangent(self.gradient_map @ positions.ravel(),
-                                        positions[self.cable_nodes], tensions_n)
+        stress, tangent = self._stress_and_tangent(self.gradient_map @ positions.ravel(),
+                                                   positions[self.cable_nodes], tensions_n)
+        return self._forces(stress), tangent
 
-    def _forces_and_tangent(self, gradients: np.ndarray, nodes_mm: np.ndarray,
-                            tensions_n: np.ndarray, with_forces: bool = True
-                            ) -> tuple[np.ndarray | None, np.ndarray]:
-        """V^T g (r,) N (None without with_forces) and K_r (r, r) N/mm from vec F (9s,) at the
-        sampled points, the cables' nodes' positions (m, 3) and their tensions (a,)."""
+    def _stress_and_tangent(self, gradients: np.ndarray, nodes_mm: np.ndarray,
+                            tensions_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """P (s, 3, 3) MPa and K_r (r, r) N/mm from vec F (9s,) at the sampled points, the
+        cables' nodes' positions (m, 3) and their tensions (a,)."""
         F = gradients.reshape(-1, 3, 3)
         stress = np.empty_like(F)
         pieces = []
@@ -300,7 +321,7 @@ class ReducedCoordinates:
                                          strict=True):
             if tension != 0.0:
                 tangent_r += local.T @ cable.geometric_stiffness(nodes_mm, tension) @ local
-        return (self._forces(stress) if with_forces else None), tangent_r
+        return stress, tangent_r
 
     def factorize(self, tangent: np.ndarray, previous: DenseFactorization | None = None
                   ) -> DenseFactorization:
@@ -331,14 +352,25 @@ class ReducedCoordinates:
 class ReducedState:
     """A State (fem.coordinates) of a reduced model, x = x_rest + V q: F at the sampled points
     is vec F_rest + G q and the cables' nodes are at x_rest + V q on their rows of V, so a
-    static solve's evaluations never form the node positions (a lift reads all of V)."""
+    static solve's evaluations never form the node positions (a lift reads all of V); each
+    is formed when first asked for (a sensing frame moves through states it never
+    evaluates)."""
 
     def __init__(self, space: ReducedCoordinates, q: np.ndarray) -> None:
         self.space = space
         self.q = q
+
+    @cached_property
+    def gradients(self) -> np.ndarray:
+        """vec F (9s,) at the sampled points."""
         # G q with G stored (r, 9s): the transposed GEMV runs faster than the plain one here
-        self.gradients = space.rest_gradients + space.stacked_t.T @ q
-        self.cable_nodes_mm = space.cable_rest + (space.cable_basis @ q).reshape(-1, 3)
+        return self.space.rest_gradients + self.space.stacked_t.T @ self.q
+
+    @cached_property
+    def cable_nodes_mm(self) -> np.ndarray:
+        """(m, 3) mm: the nodes the cables' points touch."""
+        space = self.space
+        return space.cable_rest + (space.cable_basis @ self.q).reshape(-1, 3)
 
     @cached_property
     def positions_mm(self) -> np.ndarray:
@@ -351,8 +383,19 @@ class ReducedState:
         return self.space._energy_and_forces(self.gradients)
 
     def tangent(self, tensions_n: np.ndarray) -> np.ndarray:
-        return self.space._forces_and_tangent(self.gradients, self.cable_nodes_mm, tensions_n,
-                                              with_forces=False)[1]
+        return self.space._stress_and_tangent(self.gradients, self.cable_nodes_mm,
+                                              tensions_n)[1]
+
+    def forces_and_tangent(self, tensions_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        stress, tangent = self.space._stress_and_tangent(self.gradients, self.cable_nodes_mm,
+                                                         tensions_n)
+        return self.space._forces(stress), tangent
 
     def cables(self) -> tuple[np.ndarray, np.ndarray]:
         return self.space._cable_terms(self.cable_nodes_mm)
+
+    def nodes_mm(self, nodes: np.ndarray) -> np.ndarray:
+        if "positions_mm" in self.__dict__:  # lifted already
+            return self.positions_mm[nodes]
+        rest, rows = self.space.node_rows(nodes)
+        return rest + (rows @ self.q).reshape(-1, 3)
