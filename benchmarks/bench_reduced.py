@@ -41,6 +41,7 @@ from softforce_cli.fem.compliance import (  # noqa: E402
     effector_rows,
     force_rows,
     linearize,
+    linearize_state,
 )
 from softforce_cli.fem.element import deformation_gradients  # noqa: E402
 from softforce_cli.fem.reduction.accuracy import (  # noqa: E402
@@ -91,10 +92,15 @@ def update_callable(robot: Robot, x: np.ndarray, tensions: np.ndarray):
     contacts = np.array([0, len(robot.feature_nodes) // 2])
     forces = force_rows(features.subset(contacts), robot.feature_normals[contacts],
                         model.node_count)
+    # the configuration as a sensing loop holds it (a State: a reduced model's never lifts);
+    # a fresh one each time, so that nothing it caches carries over
+    at = model.coordinates.state(x)
+    zero = np.zeros(model.coordinates.size)
     state = {"lin": linearize(model, x, tensions)}
 
     def update() -> None:
-        state["lin"] = linearize(model, x, tensions, factorization=state["lin"].factorization)
+        state["lin"] = linearize_state(model, at.moved(zero, 0.0), tensions,
+                                       factorization=state["lin"].factorization)
         compliance(state["lin"], effectors, forces)
 
     return update

@@ -201,7 +201,8 @@ def probes_study(robot_file: Path, pose: Path | None, width: int, height: int, n
     document = sense(probes, robot_file, pose, name, tare_frames=HOLD_FRAMES, **options)
     comparison = compare_with_truth(document, read_truth(probes.with_suffix(".truth.json")))
     return {**comparison.summary(), "fps": document["summary"]["frames_per_s"],
-            "median_total_ms": document["summary"]["median_total_ms"]}
+            "median_total_ms": document["summary"]["median_total_ms"],
+            "median_interval_ms": document["summary"]["median_interval_ms"]}
 
 
 def scenario_study(scenario: Path, robot_file: Path) -> dict:

@@ -130,9 +130,11 @@ def _nearest_to_lines(
     sample_pairs = cKDTree(samples.reshape(-1, 3)).sparse_distance_matrix(
         cKDTree(robot) if robot_tree is None else robot_tree, radius, output_type="ndarray"
     )
-    # a point near two samples of the same line is one candidate
-    i, j = np.unique(np.c_[index[sample_pairs["i"] // len(offsets)],
-                           sample_pairs["j"].astype(np.int64)], axis=0).T
+    # a point near two samples of the same line is one candidate (pairs as one integer key:
+    # a 1D unique sorts four times faster than a row-wise one)
+    keys = np.unique(index[sample_pairs["i"] // len(offsets)] * len(robot)
+                     + sample_pairs["j"].astype(np.int64))
+    i, j = np.divmod(keys, len(robot))
     relative = np.take(robot, j, axis=0) - np.take(features, i, axis=0)
     along = np.einsum("ij,ij->i", relative, np.take(normals, i, axis=0))
     squared = np.einsum("ij,ij->i", relative, relative)
