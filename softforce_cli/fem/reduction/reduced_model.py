@@ -38,6 +38,7 @@ from softforce_cli.fem.model import FEModel
 from softforce_cli.fem.reduction.dense import DenseFactorization
 from softforce_cli.fem.reduction.ecsw import point_operators
 from softforce_cli.fem.reduction.tangent import TANGENT_DTYPE, ReducedTangent
+from softforce_cli.fem.reduction.threads import on_one_blas_thread
 
 # An actuation beyond the training box by more than this fraction of the box's width warns.
 BOX_MARGIN = 0.1
@@ -234,6 +235,7 @@ class ReducedCoordinates:
     def size(self) -> int:
         return self.basis.shape[1]
 
+    @on_one_blas_thread
     def lift(self, values: np.ndarray) -> np.ndarray:
         return self.basis @ values
 
@@ -253,9 +255,11 @@ class ReducedCoordinates:
             self._node_rows[key] = found
         return found
 
+    @on_one_blas_thread
     def project(self, vectors: np.ndarray) -> np.ndarray:
         return self.basis.T @ vectors
 
+    @on_one_blas_thread
     def project_rows(self, rows) -> np.ndarray:
         if sp.issparse(rows):
             return np.asarray(rows @ self.basis)
@@ -271,6 +275,7 @@ class ReducedCoordinates:
             applied += self.project_rows(rows).T @ np.asarray(loads.forces_n, float).ravel()
         return applied
 
+    @on_one_blas_thread
     def state(self, positions_mm: np.ndarray | None = None) -> ReducedState:
         if positions_mm is None:
             return ReducedState(self, np.zeros(self.size))
@@ -279,6 +284,7 @@ class ReducedCoordinates:
     def cables(self, positions_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self._cable_terms(np.asarray(positions_mm)[self.cable_nodes])
 
+    @on_one_blas_thread
     def _cable_terms(self, nodes_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Shortenings (a,) mm and rows H V (a, r) from the cables' nodes' positions (m, 3)."""
         cables, m = self.local_cables, len(nodes_mm)
@@ -286,6 +292,7 @@ class ReducedCoordinates:
         rows = np.array([cable.jacobian_row(nodes_mm, m) for cable in cables])
         return shortenings, rows.reshape(len(cables), 3 * m) @ self.cable_basis
 
+    @on_one_blas_thread
     def _forces(self, stress: np.ndarray) -> np.ndarray:
         """V^T g (r,) N from P (s, 3, 3) MPa at the sampled points."""
         return self.stacked_t @ (self.point_weights * stress.reshape(-1, 9)).ravel()
@@ -293,6 +300,7 @@ class ReducedCoordinates:
     def energy_and_forces(self, positions_mm: np.ndarray) -> tuple[float, np.ndarray]:
         return self._energy_and_forces(self.gradient_map @ np.ravel(positions_mm))
 
+    @on_one_blas_thread
     def _energy_and_forces(self, gradients: np.ndarray) -> tuple[float, np.ndarray]:
         """Energy (mJ) and V^T g (r,) N from vec F (9s,) at the sampled points."""
         F = gradients.reshape(-1, 3, 3)
@@ -306,6 +314,7 @@ class ReducedCoordinates:
                                                    positions[self.cable_nodes], tensions_n)
         return self._forces(stress), tangent
 
+    @on_one_blas_thread
     def _stress_and_tangent(self, gradients: np.ndarray, nodes_mm: np.ndarray,
                             tensions_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """P (s, 3, 3) MPa and K_r (r, r) N/mm from vec F (9s,) at the sampled points, the
@@ -361,18 +370,21 @@ class ReducedState:
         self.q = q
 
     @cached_property
+    @on_one_blas_thread
     def gradients(self) -> np.ndarray:
         """vec F (9s,) at the sampled points."""
         # G q with G stored (r, 9s): the transposed GEMV runs faster than the plain one here
         return self.space.rest_gradients + self.space.stacked_t.T @ self.q
 
     @cached_property
+    @on_one_blas_thread
     def cable_nodes_mm(self) -> np.ndarray:
         """(m, 3) mm: the nodes the cables' points touch."""
         space = self.space
         return space.cable_rest + (space.cable_basis @ self.q).reshape(-1, 3)
 
     @cached_property
+    @on_one_blas_thread
     def positions_mm(self) -> np.ndarray:
         return self.space.rest + (self.space.basis @ self.q).reshape(-1, 3)
 
@@ -394,6 +406,7 @@ class ReducedState:
     def cables(self) -> tuple[np.ndarray, np.ndarray]:
         return self.space._cable_terms(self.cable_nodes_mm)
 
+    @on_one_blas_thread
     def nodes_mm(self, nodes: np.ndarray) -> np.ndarray:
         if "positions_mm" in self.__dict__:  # lifted already
             return self.positions_mm[nodes]

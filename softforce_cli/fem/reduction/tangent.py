@@ -20,7 +20,6 @@ from __future__ import annotations
 import numpy as np
 
 from softforce_cli.fem.materials import TangentFactors
-from softforce_cli.fem.reduction.dense import one_blas_thread
 
 # Precision of the per-update products (the constant shift term is always float64).
 TANGENT_DTYPE = np.float32
@@ -59,10 +58,6 @@ class ReducedTangent:
     def __call__(self, pieces: list[tuple[slice, TangentFactors]]) -> np.ndarray:
         """(r, r) N/mm, symmetric: the reduced tangent for the factors of A over each slice
         of the points (together covering all s of them, in order)."""
-        with one_blas_thread():
-            return self._sum(pieces)
-
-    def _sum(self, pieces: list[tuple[slice, TangentFactors]]) -> np.ndarray:
         r = self.size
         shift = np.concatenate([factors.shift for _, factors in pieces])
         total = self.shift_term(shift).copy()

@@ -1,0 +1,39 @@
+"""One BLAS thread for a reduced model's dense products.
+
+numpy and scipy each load an OpenBLAS with its own pool of threads, and on two cores the
+pools contend: a reduced model's products are small (r ~ 200 columns; an LU of r x r), so
+threads only add wake-ups and spinning. Measured on the coarse Diamond (200 modes): an
+update took 24 ms with the pools' two threads and 14 ms on one, an LU of K_r 16 ms against
+0.25 ms, a static solve 291 ms against 150 ms with another job on the machine
+(docs/reduced_model.md). threadpoolctl's controller is made when this module is imported,
+after numpy and scipy.linalg, so it sees both libraries; entering and leaving a limit costs
+about 8 us.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from typing import TypeVar
+
+import scipy.linalg  # noqa: F401  (numpy's and scipy's BLAS loaded before the controller looks)
+from threadpoolctl import ThreadpoolController
+
+_BLAS = ThreadpoolController()
+Result = TypeVar("Result")
+
+
+def one_blas_thread():
+    """A context in which BLAS runs on one thread."""
+    return _BLAS.limit(limits=1, user_api="blas")
+
+
+def on_one_blas_thread(function: Callable[..., Result]) -> Callable[..., Result]:
+    """`function` run in one_blas_thread()."""
+
+    @functools.wraps(function)
+    def wrapped(*args, **kwargs) -> Result:
+        with one_blas_thread():
+            return function(*args, **kwargs)
+
+    return wrapped
