@@ -121,14 +121,17 @@ def _print_summary(summary) -> None:
                       f"{c['force_mean_n']:.4f}", f"{c['force_max_n']:.4f}")
     if data["contacts"]:
         stdout.print(table)
-    stages = Table(title="median time per frame (ms)", title_justify="left")
-    medians = {k: v for k, v in data["median_stage_ms"].items() if v > 0}
-    for name in medians:
-        stages.add_column(name, justify="right")
-    stages.add_row(*(f"{v:.1f}" for v in medians.values()))
-    stdout.print(stages)
+    # one line per thread: the vision of the next frame runs beside the model of this one
+    medians = {k: v for k, v in data["median_stage_ms"].items() if v >= 0.05}
+    ahead = ("decode", "cloud", "table", "voxel", "outliers", "segmentation", "contacts")
+    for title, names in (("vision (next frame)", ahead),
+                         ("model (this frame)", [k for k in medians if k not in ahead])):
+        parts = ", ".join(f"{k} {medians[k]:.1f}" for k in names if k in medians)
+        stdout.print(f"median ms per frame, {title}: {parts}")
     skipped = ", ".join(f"{n} {reason}" for reason, n in data["skipped"].items()) or "none"
-    fps = data["frames_per_s"]
+    fps, interval = data["frames_per_s"], data["median_interval_ms"]
+    rate = "" if fps is None else f"{fps:.1f} fps"
+    if interval:
+        rate += f" ({1e3 / interval:.1f} fps median, {interval:.1f} ms between frames)"
     stdout.print(f"{data['frames']} frames, {data['ok']} ok, skipped: {skipped}; "
-                 f"{len(data['contacts'])} contacts; "
-                 f"{'' if fps is None else f'{fps:.1f} fps'}")
+                 f"{len(data['contacts'])} contacts; {rate}")
