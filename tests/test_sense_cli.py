@@ -65,6 +65,10 @@ def test_sense_writes_the_three_files_of_the_contract(probes_run):
     assert document["tare_frames"] == "auto"
     assert [f["status"] for f in document["frames"]] == ["tare", "ok", "ok", "ok"]
     assert [len(f["contacts"]) for f in document["frames"]] == [0, 1, 1, 2]
+    # the live table under the progress bar ends on the last frame's contacts
+    table = result.stderr[result.stderr.rindex("contacts in the latest frame"):]
+    for contact in document["frames"][-1]["contacts"]:
+        assert f"{contact['force_n']:.3f}" in table
 
 
 def test_sense_refuses_to_overwrite_without_force(probes_run):

@@ -92,23 +92,41 @@ def sense(
 
 
 def _run(prepared, stop_requested):
+    from rich.console import Group
+    from rich.live import Live
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from softforce_cli.estimation.session import run_sensing
 
     columns = (TextColumn("sensing"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                TextColumn("{task.fields[rate]}"))
-    with Progress(*columns, console=stderr) as progress:
-        task = progress.add_task("sensing", total=prepared.frame_count, rate="")
+    progress = Progress(*columns, console=stderr)
+    task = progress.add_task("sensing", total=prepared.frame_count, rate="")
+    # the progress bar and, under it, the contacts of the frame just sensed
+    with Live(Group(progress, _contacts_table(())), console=stderr,
+              refresh_per_second=10) as live:
 
         def on_frame(estimate, summary) -> None:
-            forces = ", ".join(f"#{c.contact} {c.force_n:.3f} N" for c in estimate.contacts)
             progress.update(task, completed=summary.frames,
-                            rate=f"{summary.frames_per_s:.1f} fps  {forces}")
+                            rate=f"{summary.frames_per_s:.1f} fps")
+            live.update(Group(progress, _contacts_table(estimate.contacts)))
 
         return run_sensing(prepared.frames, prepared.sensor, prepared.output, prepared.header,
                            force=prepared.force, on_frame=on_frame,
                            stop_requested=stop_requested)
+
+
+def _contacts_table(contacts) -> Table:
+    """The contacts (estimation.results.ContactEstimate) of one frame, one row each."""
+    table = Table(title="contacts in the latest frame", title_justify="left",
+                  caption=None if contacts else "none")
+    for name in ("contact", "feature", "x (mm)", "y (mm)", "z (mm)", "force (N)",
+                 "residual (mm)"):
+        table.add_column(name, justify="right")
+    for c in contacts:
+        table.add_row(str(c.contact), str(c.feature), *(f"{v:.1f}" for v in c.position_mm),
+                      f"{c.force_n:.3f}", f"{c.residual_mm:.2f}")
+    return table
 
 
 def _print_summary(summary) -> None:
