@@ -212,6 +212,27 @@ def test_loads_outside_the_training_box_warn(beam):
         solve_equilibrium(model, robot.cable_inputs(np.array([12.0, 0.0])))
 
 
+def test_solutions_beyond_the_trained_shapes_warn(beam, tmp_path):
+    """Loads inside the box can still fold the body beyond every training equilibrium (the
+    Diamond's two contacts): the solution's RMS displacement is checked against the
+    training's largest, which the file keeps."""
+    robot, reduction, _ = beam
+    box = reduction.box
+    assert 0.5 < box.max_displacement_mm < 50.0  # recorded, in mm, from the equilibria
+    path = tmp_path / "beam.rom.npz"
+    save_reduction(path, reduction)
+    assert load_reduction(path).box.max_displacement_mm == pytest.approx(
+        box.max_displacement_mm, rel=1e-12)
+    inputs = robot.cable_inputs(np.array([5.5, 3.0]))
+    moved = solve_equilibrium(ReducedModel(robot.full_fe_model, reduction), inputs)
+    rms = np.sqrt(np.mean(np.sum((moved.positions_mm - robot.rest_nodes_mm) ** 2, axis=1)))
+    assert rms <= box.max_displacement_mm  # inside the box: silent (test above)
+    smaller = dataclasses.replace(reduction, box=dataclasses.replace(
+        box, max_displacement_mm=0.5 * rms))
+    with pytest.warns(ReducedModelWarning, match="beyond its training's equilibria"):
+        solve_equilibrium(ReducedModel(robot.full_fe_model, smaller), inputs)
+
+
 def test_corrupt_or_missing_file_is_a_model_error(tmp_path):
     with pytest.raises(ModelError, match="not found"):
         load_reduction(tmp_path / "none.rom.npz")

@@ -124,6 +124,11 @@ class Coordinates(Protocol):
         what the coordinates were built for."""
         ...
 
+    def check_solution(self, positions_mm: np.ndarray) -> None:
+        """Warn (warnings.warn) when a static solution (n, 3) lies outside what the
+        coordinates were built for."""
+        ...
+
     def reactions(self, positions_mm: np.ndarray, external_n: np.ndarray) -> np.ndarray:
         """(k, 3) N the supports exert on the clamped nodes, for positions (n, 3) and every
         force but the elastic ones and the supports' (n, 3) N (loads, gravity, cables)."""
@@ -183,6 +188,9 @@ class FreeDofs:
 
     def check_load(self, inputs: CableInputs, external_n: np.ndarray) -> None:
         """The full model holds for any load: nothing to check."""
+
+    def check_solution(self, positions_mm: np.ndarray) -> None:
+        """The full model holds for any solution: nothing to check."""
 
     def reactions(self, positions_mm: np.ndarray, external_n: np.ndarray) -> np.ndarray:
         total = external_n - self.model.internal_forces(positions_mm)

@@ -135,6 +135,7 @@ def solve_equilibrium(
             f"(force residual {history[-1]:.3g} N); reduce the load or refine the mesh"
         )
     positions = state.positions_mm
+    space.check_solution(positions)  # a reduced model warns beyond its training's shapes
     cable_forces = (model.cable_jacobian(positions).T @ tensions).reshape(-1, 3)
     return Equilibrium(
         positions_mm=positions,

@@ -64,6 +64,10 @@ class TrainingBox:
     gravity_mm_s2  : (3,) the gravity trained with.
     rms_error_mm   : RMS surface displacement error of the reduced model against the full
                      one on validation loads inside the box (mm), NaN when not measured.
+    max_displacement_mm : the largest RMS node displacement from rest among the training's
+                     equilibria (mm; NaN in files from before it was recorded): a solution
+                     that deforms the body further left what the basis was trained on, even
+                     when each load is inside the box (two contacts folding the Diamond).
     """
 
     controls: tuple[str, ...]
@@ -72,6 +76,7 @@ class TrainingBox:
     max_force_n: float
     gravity_mm_s2: np.ndarray
     rms_error_mm: float
+    max_displacement_mm: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -134,6 +139,28 @@ class ReducedModel:
     def coordinates(self) -> ReducedCoordinates:
         return ReducedCoordinates(self)
 
+    def check_solution(self, positions_mm: np.ndarray) -> None:
+        """Warn (ReducedModelWarning) when a solution (n, 3) deforms the body further than
+        every training equilibrium did (RMS node displacement from rest): its shape is then
+        an extrapolation of the basis. The Diamond's equilibria reach 15.7 mm; the bench's two
+        contacts of 0.4 N fold the full model 20.8 mm, and the reduced answer, 5.8 mm RMS off,
+        15.7 mm: an extrapolating basis is stiff, so its own deformation understates how far
+        outside it is, and no margin is allowed (the bench's 0.25 N probe, 10.4 mm, is 0.28
+        mm off)."""
+        box = self.reduction.box
+        moved = float(np.sqrt(np.mean(np.sum((positions_mm - self.rest_nodes_mm) ** 2,
+                                             axis=1))))
+        if moved > box.max_displacement_mm:  # False for NaN (a file from before)
+            warnings.warn(ReducedModelWarning(
+                f"the reduced model's solution moves the body {moved:.1f} mm RMS, beyond its "
+                f"training's equilibria ({box.max_displacement_mm:.1f} mm at most): its error "
+                f"there is not bounded ({self._error_scale()}); check it with the full model "
+                "or retrain with larger forces"), stacklevel=3)
+
+    def _error_scale(self) -> str:
+        error = self.reduction.box.rms_error_mm
+        return f"{error:.2g} mm RMS inside it" if np.isfinite(error) else "not measured"
+
     def check_load(self, inputs: CableInputs, external_n: np.ndarray) -> None:
         """Warn (ReducedModelWarning) for actuations or forces far outside the training box,
         with the error measured inside it as the scale of what to expect."""
@@ -142,8 +169,7 @@ class ReducedModel:
         width = np.maximum(box.cable_max - box.cable_min, 1e-9)
         beyond = np.maximum(box.cable_min - values, values - box.cable_max) / width
         same = np.array([c == d for c, d in zip(inputs.control, box.controls, strict=False)])
-        scale = f"{box.rms_error_mm:.2g} mm RMS inside it" if np.isfinite(
-            box.rms_error_mm) else "not measured"
+        scale = self._error_scale()
         problems = []
         if len(beyond) and (np.any(beyond[same] > BOX_MARGIN) or not same.all()):
             worst = int(np.argmax(np.where(same, beyond, np.inf)))
@@ -338,6 +364,9 @@ class ReducedCoordinates:
 
     def check_load(self, inputs: CableInputs, external_n: np.ndarray) -> None:
         self.model.check_load(inputs, external_n)
+
+    def check_solution(self, positions_mm: np.ndarray) -> None:
+        self.model.check_solution(positions_mm)
 
     def reactions(self, positions_mm: np.ndarray, external_n: np.ndarray) -> np.ndarray:
         """The elastic forces on the clamped nodes, from the elements that touch them, shifted

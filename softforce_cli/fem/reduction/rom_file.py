@@ -2,7 +2,7 @@
 
 Arrays: basis (3n, r), elements (s,), points (s,), weights (s,), cable_min (a,), cable_max (a,),
 gravity_mm_s2 (3,); `meta`: a JSON string with format, element, fingerprint, controls,
-max_force_n, rms_error_mm, young_modulus_mpa and info (training figures).
+max_force_n, rms_error_mm, max_displacement_mm, young_modulus_mpa and info (training figures).
 
 The fingerprint hashes what the basis and the sampling are only valid for: the FE nodes and
 elements, the element type, the clamped nodes, the law and Poisson's ratio, and the cables'
@@ -58,6 +58,8 @@ def save_reduction(path: Path, reduction: Reduction, force: bool = False) -> Non
         "format": FORMAT, "element": reduction.element, "fingerprint": reduction.fingerprint,
         "controls": list(box.controls), "max_force_n": box.max_force_n,
         "rms_error_mm": box.rms_error_mm if np.isfinite(box.rms_error_mm) else None,
+        "max_displacement_mm": (box.max_displacement_mm
+                                if np.isfinite(box.max_displacement_mm) else None),
         "young_modulus_mpa": reduction.young_modulus_mpa, "info": reduction.info,
     }
     with atomic_path(Path(path), force=force) as temporary, open(temporary, "wb") as stream:
@@ -83,10 +85,11 @@ def load_reduction(path: Path) -> Reduction:
     if meta.get("format") != FORMAT:
         raise ModelError(f"{path}: format {meta.get('format')!r}, expected {FORMAT!r}; retrain "
                          "it with `softforce model reduce`")
-    rms = meta["rms_error_mm"]
+    rms, moved = meta["rms_error_mm"], meta.get("max_displacement_mm")
     box = TrainingBox(tuple(meta["controls"]), arrays["cable_min"], arrays["cable_max"],
                       float(meta["max_force_n"]), arrays["gravity_mm_s2"],
-                      float("nan") if rms is None else float(rms))
+                      float("nan") if rms is None else float(rms),
+                      float("nan") if moved is None else float(moved))
     return Reduction(meta["element"], arrays["basis"], arrays["elements"].astype(np.int64),
                      arrays["points"].astype(np.int64), arrays["weights"], box,
                      dict(meta["fingerprint"]), float(meta["young_modulus_mpa"]),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from collections.abc import Callable
@@ -139,8 +140,12 @@ def train(model: FEModel, controls: tuple[str, ...], low: np.ndarray, high: np.n
     elements, points, weights, residual = sample(model, basis, data, settings)
     step(2 * len(actuations) + 2)
     ecsw_s = time.perf_counter() - started - snapshots_s - pod_s
+    # the true equilibria (not the first-order loaded states, which extrapolate)
+    equilibria = np.concatenate([data.positions_mm, data.contact_mm]) - model.rest_nodes_mm
+    moved = float(np.sqrt(np.mean(np.sum(equilibria**2, axis=2), axis=1)).max())
     box = TrainingBox(tuple(controls), np.asarray(low, float), np.asarray(high, float),
-                      data.max_force_n, np.asarray(model.gravity_mm_s2, float), float("nan"))
+                      data.max_force_n, np.asarray(model.gravity_mm_s2, float), float("nan"),
+                      moved)
     info = {
         "modes": int(basis.shape[1]), "sampled_elements": len(np.unique(elements)),
         "sampled_points": len(points), "elements": len(model.tets),
@@ -164,8 +169,7 @@ def train(model: FEModel, controls: tuple[str, ...], low: np.ndarray, high: np.n
                 validation_s=time.perf_counter() - started - snapshots_s - pod_s - ecsw_s,
                 total_s=time.perf_counter() - started)
     return Reduction(reduction.element, basis, elements, points, weights,
-                     TrainingBox(box.controls, box.cable_min, box.cable_max, box.max_force_n,
-                                 box.gravity_mm_s2, rms),
+                     dataclasses.replace(box, rms_error_mm=rms),
                      reduction.fingerprint, reduction.young_modulus_mpa, info)
 
 
