@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-import resource
+import subprocess
 import sys
 import tempfile
 import time
@@ -133,6 +133,34 @@ def sense_run(robot: Path, overrides: dict | None = None) -> dict:
             "accuracy": errors.summary()}
 
 
+# `softforce sense` in a process of its own, which reports its peak resident set (kB) last
+_PEAK = ("import resource, sys\n"
+         "from softforce_cli.cli.main import main\n"
+         "try:\n    main()\n"
+         "finally:\n"
+         "    print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n")
+
+
+def sense_peak_mb(robot: Path, overrides: dict | None = None) -> float:
+    """Peak resident memory (MB) of `softforce sense` on the bench recording, run alone in a
+    process of its own (this process holds every benchmark's memory)."""
+    recording = _recording()
+    with tempfile.TemporaryDirectory() as folder:
+        settings = Path(folder) / "settings.toml"
+        sections: dict[str, list[str]] = {}
+        for key, value in (overrides or {}).items():
+            section, name = key.split(".")
+            sections.setdefault(section, []).append(f"{name} = {json.dumps(value)}")
+        settings.write_text("".join(f"[{k}]\n" + "\n".join(v) + "\n"
+                                    for k, v in sections.items()))
+        run = subprocess.run(
+            [sys.executable, "-c", _PEAK, "sense", str(recording), "--robot", str(robot),
+             "--calibration", str(_calibration(recording)), "--tare", str(TARE_FRAMES),
+             "--settings", str(settings), "-o", str(Path(folder) / "out")],
+            capture_output=True, text=True, check=True)
+    return int(run.stderr.strip().splitlines()[-1]) / 1024
+
+
 # (name, robot element, settings overrides): the defaults with either element, and the P1
 # robot with a coarser VoxelGrid (neighbour counts scaled to the points per area it keeps),
 # the vision stage's main cost lever (docs/sensing.md, "Speed and accuracy at 640x480").
@@ -153,7 +181,7 @@ def run() -> list[BenchRow]:
     for label, element, overrides in CASES:
         result = sense_run(robot_with_element(element), overrides)
         stages = ", ".join(f"{s} {v:.1f}" for s, v in result["stages"].items() if v >= 0.5)
-        peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        peak_mb = sense_peak_mb(robot_with_element(element), overrides)
         accuracy = result["accuracy"]
 
         def percent(value: float | None) -> str:
@@ -173,7 +201,7 @@ def run() -> list[BenchRow]:
             f"threads, {result['cpu_ms']:.0f} ms (mean); "
             f"{result['relinearizations']} "
             f"FE linearisations in {result['frames']} frames; stages (ms): {stages}; write "
-            f"{result['write_ms']:.1f} ms; peak RSS of the benchmark process {peak_mb:.0f} MB; "
+            f"{result['write_ms']:.1f} ms; peak RSS of `softforce sense` alone {peak_mb:.0f} MB; "
             f"vs the locking-free truth: {accuracy['located']}/{accuracy['true_contacts']} "
             f"contacts located (median {accuracy['location_error_median_mm']} mm), intensity "
             f"error median {percent(accuracy['intensity_error_median'])}, 90th percentile "

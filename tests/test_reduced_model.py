@@ -208,8 +208,14 @@ def test_loads_outside_the_training_box_warn(beam):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         solve_equilibrium(model, robot.cable_inputs(np.array([5.5, 3.0])))  # inside: silent
-    with pytest.warns(ReducedModelWarning, match="cable 'up' at 12 is outside the trained"):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         solve_equilibrium(model, robot.cable_inputs(np.array([12.0, 0.0])))
+    messages = [str(w.message) for w in caught if w.category is ReducedModelWarning]
+    # the input outside the box, and the shape beyond the training's (twice its sag)
+    assert len(messages) == 2
+    assert "cable 'up' at 12 is outside the trained" in messages[0]
+    assert "beyond its training's equilibria" in messages[1]
 
 
 def test_solutions_beyond_the_trained_shapes_warn(beam, tmp_path):
