@@ -133,12 +133,14 @@ def sense_run(robot: Path, overrides: dict | None = None) -> dict:
             "accuracy": errors.summary()}
 
 
-# `softforce sense` in a process of its own, which reports its peak resident set (kB) last
-_PEAK = ("import resource, sys\n"
+# `softforce sense` in a process of its own, which reports its peak resident set (kB) last:
+# /proc's VmHWM, since getrusage's ru_maxrss keeps the parent's peak across fork and exec
+_PEAK = ("import re, sys\n"
          "from softforce_cli.cli.main import main\n"
          "try:\n    main()\n"
          "finally:\n"
-         "    print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n")
+         "    status = open('/proc/self/status').read()\n"
+         "    print(re.search(r'VmHWM:\\s*(\\d+)', status).group(1), file=sys.stderr)\n")
 
 
 def sense_peak_mb(robot: Path, overrides: dict | None = None) -> float:
