@@ -35,9 +35,10 @@ def setup(tmp_path_factory):
 
 
 def _sense(setup, look_ahead: bool) -> list[dict]:
+    """The frames of sense.json (written with an empty header: still a JSON document)."""
     frames, sensor, folder = setup
     out = folder / f"ahead_{look_ahead}"
-    run_sensing(FrameRange().select(iter(frames)), sensor(), out, {"recording": "probes"},
+    run_sensing(FrameRange().select(iter(frames)), sensor(), out, {},
                 look_ahead=look_ahead)
     return json.loads((out / "sense.json").read_text())["frames"]
 

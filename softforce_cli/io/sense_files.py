@@ -82,7 +82,8 @@ class SenseWriter:
         self._frames = csv.writer(self._frames_file)
         self._contacts.writerow(CONTACTS_HEADER)
         self._frames.writerow(FRAMES_HEADER)
-        opening = json.dumps(header, indent=1)[:-1].rstrip() + ',\n "frames": ['
+        fields = json.dumps(header, indent=1)[1:-1].strip()  # the header's fields, no braces
+        opening = "{\n " + (fields + ",\n " if fields else "") + '"frames": ['
         self._json.write(opening)
         self._frames_end = self._json.tell()
         self._first = True
