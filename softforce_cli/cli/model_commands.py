@@ -182,6 +182,8 @@ def reduce(
                "sampled_elements": info["sampled_elements"], "elements": info["elements"],
                "sampled_points": info["sampled_points"], "points": info["points"],
                "validation_rms_mm": reduction.box.rms_error_mm,
+               "max_force_n": reduction.box.max_force_n,
+               "max_displacement_mm": reduction.box.max_displacement_mm,
                "training_s": round(info["total_s"], 1),
                "robot_key": f'[mesh] reduced = "{output.name}"'}
     if json_output:
@@ -194,8 +196,15 @@ def reduce(
                                     f"points, in {info['sampled_elements']} of "
                                     f"{info['elements']} elements (ECSW residual "
                                     f"{info['ecsw_residual']:.2g})")
-    table.add_row("validation", f"{reduction.box.rms_error_mm:.3f} mm RMS surface error at "
-                                "untrained actuations")
+    box = reduction.box
+    table.add_row("validation", f"{box.rms_error_mm:.3f} mm RMS surface error at untrained "
+                                "actuations, unloaded and under a contact")
+    inputs = ", ".join(f"{c.name} {lo:g}-{hi:g} {'mm' if c.control == 'displacement' else 'N'}"
+                       for c, lo, hi in zip(robot.cable_specs, box.cable_min, box.cable_max,
+                                            strict=True))
+    table.add_row("valid for", f"cables {inputs}; contact forces up to {box.max_force_n:g} N; "
+                               f"shapes up to {box.max_displacement_mm:.1f} mm RMS from rest "
+                               "(beyond, it warns)")
     table.add_row("training", f"{info['total_s']:.0f} s")
     table.add_row("written", str(output))
     table.add_row("use it", escape(f'add reduced = "{output.name}" under [mesh] of '
