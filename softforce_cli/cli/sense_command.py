@@ -13,6 +13,8 @@ from softforce_cli.cli.interrupt import deferred_interrupt, interrupted_exit_cod
 from softforce_cli.errors import SensingError
 
 FORCE_MODELS = ("axis", "normal", "cone", "3d")
+# Below this rate with a full quadratic model, the end of a run points to its reduced model.
+SLOW_FPS = 15.0
 
 
 def sense(
@@ -83,6 +85,12 @@ def sense(
     with deferred_interrupt() as stop, prepared.resources:
         summary = _run(prepared, lambda: stop.requested)
     _print_summary(summary)
+    robot_config = prepared.sensor.robot.config
+    if (robot_config.mesh.element != "p1" and robot_config.mesh.reduced is None
+            and summary.frames_per_s < SLOW_FPS):
+        stderr.print(f"[dim]tip: {summary.frames_per_s:.1f} fps with the full "
+                     f"{robot_config.mesh.element} model; its reduced model senses at camera "
+                     "rate (`softforce model reduce`, docs/reduced_model.md)[/]")
     where = f"{output}/ (contacts.csv, frames.csv, sense.json)"
     if summary.interrupted:
         stderr.print(f"[yellow]interrupted ({signal_name()}):[/] the {summary.frames} frames "
