@@ -149,7 +149,9 @@ def _print_summary(summary) -> None:
         stdout.print(table)
     # one line per thread: the vision of the next frame runs beside the model of this one
     medians = {k: v for k, v in data["median_stage_ms"].items() if v >= 0.05}
-    ahead = ("decode", "cloud", "table", "voxel", "outliers", "segmentation", "contacts")
+    from softforce_cli.vision.pipeline import OBSERVED_STAGES
+
+    ahead = ("decode", *OBSERVED_STAGES)  # decoded and observed by the look-ahead's thread
     for title, names in (("vision (next frame)", ahead),
                          ("model (this frame)", [k for k in medians if k not in ahead])):
         parts = ", ".join(f"{k} {medians[k]:.1f}" for k in names if k in medians)

@@ -285,11 +285,11 @@ class ForceSensor:
         table found before. Once the robot's colour is known (after the first process()),
         another thread may call this for the next frame while process() runs: it reads
         nothing process() changes but crop_bounds_mm, which process() replaces whole."""
-        # the camera is fixed to the table (its pose is calibrated): the table found on one
-        # frame is the table of the next
         if self.robot_rgb is None:
             raise RuntimeError("observe() before the first process(): the robot's colour is "
                                "not known yet")
+        # the camera is fixed to the table (its pose is calibrated): the table found on one
+        # frame is the table of the next
         observation = observe_frame(frame.depth_mm, frame.color, frame.intrinsics,
                                     self.transform, self.crop_bounds_mm, self.robot_rgb,
                                     self.settings.vision, self.clamped_box, self.table_plane)

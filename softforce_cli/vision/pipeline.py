@@ -6,8 +6,9 @@ while back-projecting) -> VoxelGrid -> RadiusOutlier -> colour segmentation -> c
 3), each stage timed. Up to the contacts the stages need nothing of the FE model but a crop
 box (observe_frame); the nearest features and the matching need the current feature
 geometry (match_observation), so a sensor can run the first part of the next frame while
-its model settles on this one. The table goes before the VoxelGrid, unlike the other filters' paper
-order: it is most of the points in the crop box, and every later stage costs less without it.
+its model settles on this one. The table goes before the VoxelGrid, unlike the other filters'
+paper order: it is most of the points in the crop box, and every later stage costs less
+without it.
 """
 
 from __future__ import annotations
@@ -35,7 +36,9 @@ from softforce_cli.vision.settings import VisionSettings, settings_for_camera
 # The table plane is fitted to every third pixel row and column of the crop: a ninth of the
 # pixels, still thousands of table points, so RANSAC and the least-squares refit lose nothing.
 TABLE_STRIDE = 3
-STAGES = ("table", "cloud", "voxel", "outliers", "segmentation", "contacts", "matching")
+# observe_frame's stages (no feature geometry needed), then match_observation's
+OBSERVED_STAGES = ("table", "cloud", "voxel", "outliers", "segmentation", "contacts")
+STAGES = (*OBSERVED_STAGES, "matching")
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,7 +50,7 @@ class Observation:
     table_plane : (unit normal (3,), offset) of the removed table, or None.
     settings    : the vision settings used (scaled to the camera), which matching uses too.
     camera_mm   : (3,) the camera's position (robot frame).
-    timings_ms  : milliseconds per stage (STAGES up to "contacts").
+    timings_ms  : milliseconds per stage (OBSERVED_STAGES).
     """
 
     cloud: PointCloud

@@ -20,12 +20,13 @@ class DenseFactorization:
         self._factors: tuple[np.ndarray, np.ndarray] | None = None
         self.refactor(matrix)
 
+    @on_one_blas_thread
     def refactor(self, matrix: np.ndarray) -> DenseFactorization:
         matrix = np.asarray(matrix, dtype=float)
         if not np.all(np.isfinite(matrix)):
             raise SolverError("the reduced stiffness matrix is not finite: the configuration "
                               "left the reduced model's range; check the loads")
-        self._factors = _lu_factor(matrix)
+        self._factors = scipy.linalg.lu_factor(matrix, check_finite=False)
         pivots = np.abs(np.diag(self._factors[0]))
         if pivots.min(initial=np.inf) <= 1e-13 * pivots.max(initial=0.0):
             raise SolverError("the reduced stiffness matrix is singular: is the robot clamped, "
@@ -37,7 +38,3 @@ class DenseFactorization:
         return scipy.linalg.lu_solve(self._factors, np.asarray(rhs, dtype=float),
                                      check_finite=False)
 
-
-@on_one_blas_thread
-def _lu_factor(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    return scipy.linalg.lu_factor(matrix, check_finite=False)
