@@ -7,6 +7,7 @@ import tomllib
 
 import pytest
 
+from softforce_cli.model.effects import EFFECTS
 from softforce_cli.model.robot import load_robot
 from tests.cli_runner import assert_one_line_error, softforce
 from tests.conftest import ROOT, SAMPLE_ROBOT
@@ -49,6 +50,7 @@ def test_the_concealed_slack_is_named_located_fitted_and_halves_the_residual(sla
     assert slack["unit"] == "mm"
     assert slack["value"] == pytest.approx(true_slack, rel=0.1)
     assert slack["ci95"][0] < slack["value"] < slack["ci95"][1]
+    assert slack["ci95"][0] <= true_slack <= slack["ci95"][1]
     assert first["heldout_rms_after_mm"] <= 0.5 * first["heldout_rms_before_mm"]
     assert document["location"]["cables"] == ["north"]
     assert document["location"]["regions"][0] == "north"
@@ -85,6 +87,14 @@ def test_diagnosis_json_follows_the_contract(slack_run):
         for parameter in effect["parameters"].values():
             low, high = parameter["ci95"]
             assert low <= parameter["value"] <= high
+    # ... within the parameter's physical range (a pair's parameters are named
+    # "effect[target].parameter": those of the first effect alone are checked here)
+    for effect in document["effects"]:
+        for name, parameter in effect["parameters"].items():
+            if "." in name:
+                continue
+            spec = EFFECTS[effect["name"]].parameter(name)
+            assert spec.lower <= parameter["ci95"][0] <= parameter["ci95"][1] <= spec.upper
     table = softforce("report", out, "--format", "csv", "--table", "effects")
     assert table.returncode == 0, table.stderr
     assert table.stdout.splitlines()[1].startswith("cable_slack,north,slack_mm,")

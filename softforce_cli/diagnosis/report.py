@@ -55,6 +55,9 @@ def _parameters(effect: Effect, free: tuple[str, ...], values: np.ndarray,
             interval = [1.0 / interval[1] if interval[1] > 0 else math.inf,
                         1.0 / interval[0] if interval[0] > 0 else math.inf]
         spec = EFFECTS[effect.name].parameter(name)
+        # an interval wider than the physical range (a pair the data cannot separate) is
+        # reported as that range
+        interval = np.clip(interval, spec.lower, spec.upper)
         out[name] = {"value": _bounded(value), "ci95": [_bounded(v) for v in interval],
                      "unit": spec.unit}
     return out
@@ -100,6 +103,11 @@ def effect_entry(item: Final | Screened, floor_mm: float, selected: bool) -> dic
                                if isinstance(item, Final) else []),
             "table_misfit_mm": (None if item.table_misfit_mm is None
                                 else round(item.table_misfit_mm, 3)),
+            # what it leaves of the residual that changes across frames (a refitted
+            # absolute effect must explain that too to be named)
+            "heldout_relative_after_mm": (
+                _finite(item.relative_heldout.rms_after_mm)
+                if isinstance(item, Final) and item.relative_heldout is not None else None),
         },
     }
 
