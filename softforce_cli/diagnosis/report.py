@@ -176,8 +176,10 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
         lines.append(f"a structured mismatch ({evidence['systematic_final_mm']:.2f} mm above "
                      f"the noise floor) that no effect of the library explains, in {where}")
         if diagnosis.partial:
+            # the figures that decide a name: what changes across frames (selection)
             lines.append(f"{', '.join(diagnosis.partial)} fits part of it, too little to name "
-                         f"(held-out {evidence['heldout_relative_nominal_mm']:.2f} -> "
+                         "(what changes across frames, held-out relative to a static "
+                         f"baseline: {evidence['heldout_relative_nominal_mm']:.2f} -> "
                          f"{evidence['heldout_relative_final_mm']:.2f} mm, noise floor "
                          f"{diagnosis.noise_floor_mm:.2f} mm): physics outside the library?")
     for group in diagnosis.groups:
