@@ -73,6 +73,17 @@ class Candidate:
         return inputs.table.misfit_mm(self.effects(values), inputs.robot_from_camera)
 
 
+def judged_residuals(entries: Field, left: np.ndarray, jacobian: np.ndarray, relative: bool
+                     ) -> tuple[Field, np.ndarray]:
+    """The residual left (E,) mm and Jacobian (E, k) a fit is judged on, at `entries`: less
+    their static offsets per node (over all entries) when the fit is relative to them."""
+    if relative:
+        everything = np.ones(len(left), dtype=bool)
+        left = left - node_offsets(left, entries, everything)
+        jacobian = jacobian - node_offsets(jacobian, entries, everything)
+    return Field(entries.frame, entries.node, left, entries.weight), jacobian
+
+
 def node_offsets(values: np.ndarray, field: Field, mask: np.ndarray) -> np.ndarray:
     """Per entry, the point-weighted mean of `values` (E,) or (E, k) over the entries in
     `mask` at the same node (the static baseline of that node); NaN where the node has no

@@ -18,7 +18,7 @@ from softforce_cli.diagnosis.fitting import (
     HeldOut,
     fit_values,
     held_out,
-    node_offsets,
+    judged_residuals,
     shift_jacobian,
 )
 from softforce_cli.diagnosis.hypotheses import ABSOLUTE, Inputs, hypotheses
@@ -394,20 +394,9 @@ def _first_order_ci(candidate: Candidate, inputs, nominal: Field, values: np.nda
                     relative: bool, n_eff: float, frames: int, segments: np.ndarray
                     ) -> np.ndarray:
     """(k, 2) 95% intervals of a screened fit (its first-order model's Jacobian)."""
-    field, jacobian = _judged(nominal, nominal.mean_mm - candidate.shift(values, inputs),
+    field, jacobian = judged_residuals(nominal, nominal.mean_mm - candidate.shift(values, inputs),
                               shift_jacobian(candidate, inputs, values), relative)
     return confidence_intervals(field, jacobian, values, n_eff, frames, segments)
-
-
-def _judged(entries: Field, left: np.ndarray, jacobian: np.ndarray, relative: bool
-            ) -> tuple[Field, np.ndarray]:
-    """The residual left (E,) mm and Jacobian (E, k) a fit is judged on, at `entries`: less
-    their static offsets per node when the fit is relative to them."""
-    if relative:
-        everything = np.ones(len(left), dtype=bool)
-        left = left - node_offsets(left, entries, everything)
-        jacobian = jacobian - node_offsets(jacobian, entries, everything)
-    return Field(entries.frame, entries.node, left, entries.weight), jacobian
 
 
 def _best_per_effect(screened: list[Screened]) -> list[Screened]:
@@ -439,7 +428,7 @@ def _final(exact: ExactModel, screened: Screened, nominal: Field, segments: np.n
     relative = result if screened.relative else validated(True)
     # the residual at the values (one first-order step from the last exact evaluation)
     left = fitted.field.mean_mm - fitted.jacobian @ (fitted.values - fitted.evaluated)
-    field, jacobian = _judged(fitted.field, left, fitted.jacobian, screened.relative)
+    field, jacobian = judged_residuals(fitted.field, left, fitted.jacobian, screened.relative)
     ci = confidence_intervals(field, jacobian, fitted.values, n_eff, frames, segments)
     table = fitted.candidate.table_misfit_mm(fitted.values, inputs)
     return Final(screened, fitted, result, ci,

@@ -21,6 +21,7 @@ from softforce_cli.diagnosis.basis import Basis
 from softforce_cli.diagnosis.fitting import (
     Candidate,
     _linear_step,
+    judged_residuals,
     node_offsets,
     shift_jacobian,
 )
@@ -293,12 +294,8 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
 
 def _step(field: Field, jacobian: np.ndarray, relative: bool) -> np.ndarray:
     """(k,) Gauss-Newton step on the exact residuals (E,) with the Jacobian (E, k)."""
-    everything = np.ones(len(field.mean_mm), dtype=bool)
-    r = field.mean_mm
-    if relative:
-        jacobian = jacobian - node_offsets(jacobian, field, everything)
-        r = r - node_offsets(r, field, everything)
-    return _linear_step(Field(field.frame, field.node, r, field.weight), jacobian, everything)
+    judged, jacobian = judged_residuals(field, field.mean_mm, jacobian, relative)
+    return _linear_step(judged, jacobian, np.ones(len(field.mean_mm), dtype=bool))
 
 
 def _objective(field: Field, relative: bool) -> float:

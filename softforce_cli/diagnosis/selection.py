@@ -211,8 +211,8 @@ def segment_clustered_half_widths(field: Field, jacobian: np.ndarray,
     if count < 2:
         return np.zeros(k)
     weighted = jacobian * (field.weight * field.mean_mm)[:, None]  # (E, k)
-    scores = np.zeros((count, k))
-    np.add.at(scores, cluster, weighted)
+    scores = np.stack([np.bincount(cluster, weights=column, minlength=count)
+                       for column in weighted.T], axis=1)  # (G, k)
     bread = np.linalg.pinv((jacobian * field.weight[:, None]).T @ jacobian)
     meat = count / (count - 1) * scores.T @ scores
     covariance = bread @ meat @ bread

@@ -37,4 +37,3 @@ class DenseFactorization:
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         return scipy.linalg.lu_solve(self._factors, np.asarray(rhs, dtype=float),
                                      check_finite=False)
-
