@@ -11,11 +11,15 @@ a rerun continues where the last stopped. `--table` prints the markdown table of
 (docs/diagnosis.md).
 
     .venv/bin/python benchmarks/study_diagnosis.py [--cases NAME,...] [--seeds 3]
-        [--first-seed 1] [--redo] [--recordings-only] [--table] [--markers]
+        [--first-seed 1] [--redo] [--recordings-only] [--table] [--markers] [--self]
 
 --markers: the recordings publish the robot's nine markers too (/markers, 0.5 mm noise), as
 a setup calibrated from markers would; their cases are kept as NAME+markers. The sensor's
 images are the same as without (simulate draws the markers' noise either way).
+
+--self: the truth is the estimator's own model (the coarse mesh with quadratic elements and
+the robot file's law) instead of the locking-free body on another mesh, cases NAME+self:
+what goes wrong there is the method's, not the mesh's.
 """
 
 from __future__ import annotations
@@ -102,19 +106,47 @@ LAW_OF_ROBOT = {"material_linear": "linear"}
 HIDDEN_LOAD = '[{ kind = "weight", point_mm = [0.0, 97.0, 40.0], force_n = 0.4 }]'
 # A case diagnosed on recordings that publish markers is named with this suffix.
 MARKED = "+markers"
+# A case whose truth is the estimator's own model (the coarse mesh with quadratic elements
+# and the robot file's law: no discretisation gap, camera noise only) is named with this
+# suffix: what is wrong there is the method's, not the mesh's.
+SELF = "+self"
 MARKERS_TOML = "[markers]\npublish = true\nsigma_mm = 0.5\n\n"
 
 
+def plain_case(case: str) -> str:
+    """The library's case a study case is a variant of (without its suffixes)."""
+    return case.removesuffix(SELF).removesuffix(MARKED)
+
+
+def coarse_variant(name: str, old: str, new: str) -> Path:
+    """A copy of COARSE in FOLDER with `old` replaced by `new` (its mesh path made absolute)."""
+    text = COARSE.read_text()
+    if old not in text:
+        raise SystemExit(f"{COARSE} no longer has {old}; update the study's copy")
+    mesh = re.search(r'^path = "(.*)"$', text, re.MULTILINE)
+    path = FOLDER / name
+    path.write_text(text.replace(old, new).replace(
+        mesh.group(0), f'path = "{(COARSE.parent / mesh.group(1)).resolve()}"'))
+    return path
+
+
+def self_robot() -> Path:
+    """The default robot file with quadratic elements: the model diagnose predicts with."""
+    return coarse_variant("diamond_self.toml", "[material]", 'element = "p2"\n\n[material]')
+
+
 def scenario_text(case: str, seed: int) -> str:
-    body = CASES[case.removesuffix(MARKED)][2]
-    robot = os.path.relpath(TRUTH_ROBOT, FOLDER)
+    body = CASES[plain_case(case)][2]
+    truth = self_robot() if case.endswith(SELF) else TRUTH_ROBOT
+    robot = os.path.relpath(truth, FOLDER)
+    law = "" if case.endswith(SELF) else 'law = "neo-hookean"\n'
     load = f"load = {HIDDEN_LOAD}\n" if body == "load" else ""
     frames = "\n".join(f"[[frame]]\nactuation = {[float(v) for v in a]}\nrepeat = {n}\n{load}"
                        for a, n in TIMELINE)
     effect = f"[[effect]]\n{body}\n\n" if body and body != "load" else ""
-    return (f'name = "{case}"\nrobot = "{robot}"\nlaw = "neo-hookean"\nseed = {seed}\n'
+    return (f'name = "{case}"\nrobot = "{robot}"\n{law}seed = {seed}\n'
             "frame_interval_s = 0.5\n\n[camera]\nwidth = 424\nheight = 240\n\n"
-            f"{MARKERS_TOML if case.endswith(MARKED) else ''}{effect}{frames}")
+            f"{MARKERS_TOML if MARKED in case else ''}{effect}{frames}")
 
 
 def softforce(*args) -> subprocess.CompletedProcess:
@@ -163,24 +195,18 @@ def ensure_recording(case: str, seed: int, recording: Path) -> str | None:
 def recorded_case(case: str) -> str:
     """The case whose recording a case reads: a case with its own robot file has the clean
     case's truth."""
-    plain = case.removesuffix(MARKED)
+    plain = plain_case(case)
     return ("clean" if plain in LAW_OF_ROBOT else plain) + case[len(plain):]
 
 
 def robot_file(case: str) -> Path:
     """The robot file a case is diagnosed with: COARSE, or a copy with another law."""
-    case = case.removesuffix(MARKED)
+    case = plain_case(case)
     if case not in LAW_OF_ROBOT:
         return COARSE
-    text = COARSE.read_text()
     law = 'law = "corotational"'
-    if law not in text:
-        raise SystemExit(f"{COARSE} no longer has {law}; update LAW_OF_ROBOT's copy")
-    mesh = re.search(r'^path = "(.*)"$', text, re.MULTILINE)
-    path = FOLDER / f"diamond_{LAW_OF_ROBOT[case]}.toml"
-    path.write_text(text.replace(law, f'law = "{LAW_OF_ROBOT[case]}"').replace(
-        mesh.group(0), f'path = "{(COARSE.parent / mesh.group(1)).resolve()}"'))
-    return path
+    return coarse_variant(f"diamond_{LAW_OF_ROBOT[case]}.toml", law,
+                          f'law = "{LAW_OF_ROBOT[case]}"')
 
 
 def run_case(case: str, seed: int) -> dict:
@@ -199,7 +225,7 @@ def run_case(case: str, seed: int) -> dict:
     if run.returncode != 0:
         return {"case": case, "seed": seed, "error": run.stderr.strip()[-300:]}
     document = json.loads((output / "diagnosis.json").read_text())
-    expected, target, _, parameter, true_value = CASES[case.removesuffix(MARKED)]
+    expected, target, _, parameter, true_value = CASES[plain_case(case)]
     first = document["effects"][0] if document["effects"] else {}
     fitted_parameter = first.get("parameters", {}).get(parameter, {}) if parameter else {}
     return {
@@ -255,6 +281,8 @@ def main() -> None:
     parser.add_argument("--table", action="store_true", help="print the table of what ran")
     parser.add_argument("--markers", action="store_true",
                         help="recordings with the markers published (cases NAME+markers)")
+    parser.add_argument("--self", action="store_true", dest="own_model",
+                        help="the truth is the estimator's own model (cases NAME+self)")
     args = parser.parse_args()
     FOLDER.mkdir(parents=True, exist_ok=True)
     rows = read_results()
@@ -266,6 +294,8 @@ def main() -> None:
         raise SystemExit(f"unknown case(s): {', '.join(unknown)}")
     if args.markers:
         cases = [c + MARKED for c in cases]
+    if args.own_model:
+        cases = [c + SELF for c in cases]
     for seed in range(args.first_seed, args.seeds + 1):
         for case in cases:
             if args.recordings_only:
@@ -293,7 +323,7 @@ def read_results() -> dict[tuple[str, int], dict]:
 def _order(key: tuple[str, int]) -> tuple[int, int]:
     """Table order: by seed, then as the cases are listed."""
     case, seed = key
-    plain = case.removesuffix(MARKED)
+    plain = plain_case(case)
     order = list(CASES).index(plain) if plain in CASES else len(CASES)
     return seed, 2 * order + (plain != case)
 

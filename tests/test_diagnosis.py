@@ -415,3 +415,52 @@ def test_a_refit_past_what_the_model_can_solve_pulls_back_and_says_where():
     line = unreached_line(SimpleNamespace(candidate=softer, refit=fitted, values=fitted.values))
     assert "no equilibrium at inputs (9, 0) with stiffness_scale at (0.6)" in line
     assert f"stopped at scale = {fitted.values[0]:.4g}" in line
+
+
+def _saturating(p: float) -> float:
+    """A Diamond arm twice as stiff: the exact shift a fifth to a tenth of the tangent's."""
+    return 0.25 * p / (1.0 + 2.0 * p)
+
+
+def _three_times(p: float) -> float:
+    """An exact model three times as mobile as its tangent: the chord step overshoots."""
+    return 3.0 * p
+
+
+@pytest.mark.parametrize("exact_shift", [_saturating, _three_times])
+def test_the_refit_learns_how_far_the_exact_model_moves(exact_shift):
+    """An exact model that moves a fifth to a tenth as far as the first-order one says (the
+    nominal tangent overstates a stiffening's effect): the chord method alone crept from 1.18
+    to 1.38 in three steps on the very model that made the data; with the secant update the
+    refit reaches the truth, and the Jacobian it reports (from which the 95% interval comes)
+    has the exact model's slope there. An exact model three times as mobile makes the first
+    step overshoot and raise the residual: its midpoint is taken, and the refit goes on."""
+    from types import SimpleNamespace
+
+    from softforce_cli.diagnosis.refit import Prediction, refit
+
+    frames, nodes, truth = 8, 30, 2.0
+    pattern = np.sin(np.linspace(0, 3, nodes))[None] * np.linspace(1.0, 2.0, frames)[:, None]
+    inputs = _linear_inputs(frames, nodes, pattern)
+    stiffer = Candidate((Hypothesis("stiffness_scale", None, ("scale",), np.ones(1),
+                                    np.array([0.5]), np.array([4.0])),))
+
+    def moved(scale: float) -> float:  # the exact shift per unit of pattern
+        return exact_shift(1.0 - 1.0 / scale)
+
+    class Exact:
+        basis = SimpleNamespace(inputs_for=lambda field: inputs)
+
+        def predict(self, candidate, values):
+            self.values = values
+            return Prediction(np.zeros((1, nodes, 3)), np.zeros(frames, dtype=int), 1)
+
+        def field(self, prediction):
+            return _field((moved(truth) - moved(self.values[0])) * pattern)
+
+    fitted = refit(Exact(), stiffer, np.array([1.18]), False, lambda f, j, v: np.zeros(1))
+    assert abs(fitted.values[0] - truth) < 0.02 * truth
+    step = 1e-4
+    slope = (moved(truth + step) - moved(truth - step)) / (2 * step)
+    reported = np.linalg.lstsq(pattern.reshape(-1, 1), fitted.jacobian[:, 0], rcond=None)[0][0]
+    assert abs(reported / slope - 1.0) < 0.15

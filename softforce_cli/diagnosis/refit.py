@@ -4,9 +4,10 @@ The screening's first-order model ranks every hypothesis; the few best are refit
 exact model: each state solved again with the effects (warm-started from its nominal
 equilibrium of the accurate model, diagnosis.solves), the camera effects applied, and the
 residuals measured again (each point re-associated with the moved surface). Gauss-Newton
-steps use the first-order model's Jacobian at the current values with these exact residuals
-(a chord method: it converges to the exact model's least squares, at the first-order model's
-rate), each step kept only when the exact residual falls.
+steps use the first-order model's Jacobian at the current values with these exact residuals,
+corrected by Broyden's secant update from the shifts the steps before made (a chord method
+alone converges at the first-order model's rate, which for a large stiffness change is slow),
+each step kept only when the exact residual falls.
 """
 
 from __future__ import annotations
@@ -42,11 +43,14 @@ from softforce_cli.model.effects import (
 # Gauss-Newton steps of the refit after the exact evaluation at the screened values, each
 # solved only while it moves the values by more than half their 95% interval: cable effects
 # screen within a few percent and stop after one (docs/diagnosis.md); a large stiffness
-# change (an arm 50% softer) screens 30-40% off and needs them. Each costs a P2 solve of
+# change (an arm twice as stiff) screens 40% off and needs four or five, each with the
+# Jacobian corrected by what the steps before it moved (secant_update). Each costs a P2 solve of
 # every affected state (5-15 s each on a loaded 2-core machine).
-REFIT_STEPS = 3
+REFIT_STEPS = 5
 # A step smaller than this share of a parameter's screening range ends the refit.
 REFIT_TOLERANCE = 1e-3
+# The secant's gains on the first-order Jacobian are kept within these (refit.secant_update).
+MIN_SECANT, MAX_SECANT = 0.02, 50.0
 # A state whose solve does not converge from its first-order start is solved again with the
 # effect's values reached in this many equal steps from the neutral ones (a body 30% softer
 # under displacement-controlled cables: 60 Newton iterations from the first-order start
@@ -61,6 +65,10 @@ STEP_SETTINGS = dataclasses.replace(SETTINGS, max_iterations=15)
 # north cable pulled, so a body 30% softer screens at 0.64, beyond any equilibrium near the
 # nominal one, while its refit can still approach from the stable side.
 BACKOFFS = 2
+# A step that raises the exact residual (past the minimum along it) is halved this many times
+# before the refit ends: the south arm at half its stiffness, on the very model that made the
+# data, went 0.70, 0.65, 0.59 and then past the truth to 0.47, where the residual doubled.
+OVERSHOOT_HALVINGS = 1
 
 
 class NoEquilibriumError(SolverError):
@@ -98,11 +106,11 @@ class Prediction:
 @dataclass(frozen=True, eq=False)
 class Refit:
     """A candidate on the exact model: the fitted values (k,); the exact residual entries,
-    first-order Jacobian (E, k) and prediction at `evaluated` (k,) (the last exact
-    evaluation: `values` is one Gauss-Newton step from it when that step was within half
-    the 95% interval, else `values` itself); the FE solves it took; and the values the exact
-    model could not follow (`unreached`: each the SolverError, a NoEquilibriumError as a
-    rule, after which the values were pulled back)."""
+    Jacobian (E, k: the first-order one with the secant's correction) and prediction at
+    `evaluated` (k,) (the last exact evaluation: `values` is one Gauss-Newton step from it
+    when that step was within half the 95% interval, else `values` itself); the FE solves it
+    took; and the values the exact model could not follow (`unreached`: each the
+    SolverError, a NoEquilibriumError as a rule, after which the values were pulled back)."""
 
     candidate: Candidate
     values: np.ndarray
@@ -262,34 +270,79 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
     solves = prediction.solves
     field = exact.field(prediction)
     jacobian = shift_jacobian(candidate, exact.basis.inputs_for(field), values)
+    secant = np.eye(len(values))
     span = candidate.upper - candidate.lower
     for _ in range(REFIT_STEPS):
         if stop_requested():
             break
-        step = _step(field, jacobian, relative)
+        step = _step(field, jacobian @ secant, relative)
         trial = np.clip(values + step, candidate.lower, candidate.upper)
         if np.all(np.abs(trial - values) <= np.maximum(
-                REFIT_TOLERANCE * span, 0.5 * half_widths(field, jacobian, values))):
-            return Refit(candidate, trial, field, jacobian, prediction, solves, values,
+                REFIT_TOLERANCE * span, 0.5 * half_widths(field, jacobian @ secant, values))):
+            return Refit(candidate, trial, field, jacobian @ secant, prediction, solves, values,
                          tuple(unreached))
-        moved = None
-        for _ in range(BACKOFFS):
-            try:
-                moved = exact.predict(candidate, trial)
+        for _ in range(OVERSHOOT_HALVINGS + 1):
+            moved, trial = _reached(exact, candidate, values, trial, unreached)
+            if moved is None:
                 break
-            except SolverError as error:  # the step left what Newton can follow: halve it
-                unreached.append(error)
-                trial = 0.5 * (values + trial)
+            solves += moved.solves
+            trial_field = exact.field(moved)
+            if _objective(trial_field, relative) < _objective(field, relative):
+                break
+            moved, trial = None, 0.5 * (values + trial)  # past the minimum along the step
         if moved is None:
             break
-        solves += moved.solves
-        trial_field = exact.field(moved)
-        if _objective(trial_field, relative) >= _objective(field, relative):
-            break
+        secant = secant_update(secant, field, trial_field, jacobian, trial - values, relative)
         values, prediction, field = trial, moved, trial_field
         jacobian = shift_jacobian(candidate, exact.basis.inputs_for(field), values)
-    return Refit(candidate, values, field, jacobian, prediction, solves, values,
+    return Refit(candidate, values, field, jacobian @ secant, prediction, solves, values,
                  tuple(unreached))
+
+
+def _reached(exact: ExactModel, candidate: Candidate, values: np.ndarray, trial: np.ndarray,
+             unreached: list[SolverError]) -> tuple[Prediction | None, np.ndarray]:
+    """(the prediction at trial, trial), the step from values halved while no solve reaches
+    it (BACKOFFS times at most; each failure appended to unreached): (None, trial) when
+    none does."""
+    for _ in range(BACKOFFS):
+        try:
+            return exact.predict(candidate, trial), trial
+        except SolverError as error:  # the step left what Newton can follow: halve it
+            unreached.append(error)
+            trial = 0.5 * (values + trial)
+    return None, trial
+
+
+def secant_update(secant: np.ndarray, before: Field, after: Field, jacobian: np.ndarray,
+                  step: np.ndarray, relative: bool) -> np.ndarray:
+    """(k, k) correction S of the first-order Jacobian J (E, k) of `before`'s entries, by
+    Broyden's update in the parameters: after it, J S step is the shift the exact model made
+    between the two evaluations (least squares over their common entries, less the static
+    offsets when relative) and S is unchanged across `step`.
+
+    The first-order model is the nominal state's tangent: the refit's chord steps converge
+    at the rate at which it is right. A south arm twice as stiff moves the Diamond far less
+    than its tangent says, and the chord stopped at 1.38 after three steps on the very
+    model that made the data; with the secant, 1.96 [1.75, 2.16]. The same ratio makes a
+    95% interval from J too narrow (there [1.31, 1.44]): the refit reports J S."""
+    nodes = int(max(before.node.max(), after.node.max())) + 1
+    shared, at_before, at_after = np.intersect1d(
+        before.frame.astype(np.int64) * nodes + before.node,
+        after.frame.astype(np.int64) * nodes + after.node, assume_unique=True,
+        return_indices=True)
+    if len(shared) <= len(step) or not np.any(step):
+        return secant
+    common = Field(before.frame[at_before], before.node[at_before],
+                   before.mean_mm[at_before] - after.mean_mm[at_after],
+                   before.weight[at_before])
+    judged, J = judged_residuals(common, common.mean_mm, jacobian[at_before], relative)
+    seen = _linear_step(judged, J, np.ones(len(shared), dtype=bool))  # J seen ~ the shift
+    updated = secant + np.outer(seen - secant @ step, step) / (step @ step)
+    gains = np.linalg.svd(updated, compute_uv=False)
+    # a shift lost in the re-association of points (a step too small to see) says nothing
+    if step @ (updated @ step) <= 0.0 or gains.min() < MIN_SECANT or gains.max() > MAX_SECANT:
+        return secant
+    return updated
 
 
 def _step(field: Field, jacobian: np.ndarray, relative: bool) -> np.ndarray:
