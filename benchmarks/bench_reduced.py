@@ -65,10 +65,12 @@ CALIBRATION_MM = np.array([6.0, 2.0, 4.0, 9.0])
 PROBE_MM = np.array([0.0, 45.0, 90.0])
 FIGURE = ROOT / "docs" / "figures" / "reduced_model_accuracy.png"
 # Cables over 0-10 mm (the sensing and calibration cases use up to 9 mm): the file's 20 mm
-# with the other cables held folds the p2 Diamond beyond a quick Newton solve.
-SETTINGS = TrainingSettings(box_fraction=0.5)
+# with the other cables held folds the p2 Diamond beyond a quick Newton solve. ECSW to 3e-3:
+# on the Diamond as accurate as the default 1e-3 with 0.7 times the points (--study).
+SETTINGS = TrainingSettings(box_fraction=0.5, ecsw_tolerance=3e-3)
 # (basis size, ECSW tolerance) pairs of the study (docs/reduced_model.md)
-STUDY_GRID = ((40, 1e-2), (60, 1e-2), (80, 1e-2), (60, 3e-3), (120, 1e-3))
+STUDY_GRID = ((200, 1e-3), (200, 3e-3), (200, 1e-2), (200, 3e-2), (160, 1e-3), (120, 1e-3),
+              (160, 1e-2), (120, 1e-2))
 
 
 def reduced_robot(element: str = "p2") -> tuple[Robot, Robot]:
@@ -331,7 +333,11 @@ def solve_study(repeats: int = 30) -> None:
 
 
 def study() -> None:
-    """Accuracy and update time vs basis size and ECSW tolerance, on the cached snapshots."""
+    """Accuracy and update time vs basis size and ECSW tolerance, on the cached snapshots.
+
+    Each model is kept as out/bench_reduced/study_{modes}_{tolerance}.rom.npz (for a sensing
+    run through a robot file naming it). The two contacts are reported apart: their 21 mm fold
+    lies outside every training state, and the worst case would always be theirs."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -344,45 +350,56 @@ def study() -> None:
     figures = []
     for modes, tolerance in STUDY_GRID:
         settings = dataclasses.replace(base, max_modes=modes, ecsw_tolerance=tolerance,
-                                       energy_tolerance=1e-12, validations=0)
-        reduction = train_robot(full, settings, cache=CACHE / "p2.snapshots.npz")
-        path = CACHE / "study.rom.npz"
-        save_reduction(path, reduction, force=True)
+                                       validations=0)
+        path = CACHE / f"study_{modes}_{tolerance:g}.rom.npz"
+        if not path.exists():
+            reduction = train_robot(full, settings, cache=CACHE / "p2.snapshots.npz")
+            save_reduction(path, reduction, force=True)
         mesh = dataclasses.replace(full.config.mesh, reduced=path)
         robot = dataclasses.replace(full, config=dataclasses.replace(full.config, mesh=mesh))
+        points = robot.fe_model.reduction.points.size
         try:
-            errors = [compare(answer, respond(robot.fe_model, case, full.feature_nodes,
-                                              full.feature_normals),
-                              full.rest_nodes_mm, full.mesh.surface_nodes)
-                      for _, answer, case in references]
+            errors = {name: compare(answer, respond(robot.fe_model, case, full.feature_nodes,
+                                                    full.feature_normals),
+                                    full.rest_nodes_mm, full.mesh.surface_nodes)
+                      for name, answer, case in references}
         except SolverError as error:  # too few modes or elements to hold a case
-            print(modes, tolerance, len(reduction.points), error, flush=True)
+            print(modes, tolerance, points, error, flush=True)
             continue
         eq = solve_equilibrium(robot.fe_model, robot.cable_inputs(ACTUATION))
         update_s = median_time(update_callable(robot, eq.positions_mm,
-                                               eq.cable_tensions_n), repeats=30)
-        row = (reduction.mode_count, tolerance, len(reduction.points),
-               max(e.rms_mm for e in errors),
-               max(max(e.W_relative.values()) for e in errors), update_s)
-        print(row, flush=True)
+                                               eq.cable_tensions_n), repeats=100)
+        inside = [e for name, e in errors.items() if "two contacts" not in name]
+        probe = next(e for name, e in errors.items() if "probe" in name)
+        row = (modes, tolerance, points, max(e.rms_mm for e in inside),
+               max(max(e.W_relative.values()) for e in inside), probe.rms_mm,
+               probe.W_relative["W_ef"], update_s)
+        print(f"modes {modes}, ECSW tol {tolerance:g}: {points} points, worst RMS "
+              f"{row[3]:.3f} mm, worst W {100 * row[4]:.1f}% (without the two contacts), "
+              f"probe {row[5]:.3f} mm, W_ef {100 * row[6]:.1f}%; update "
+              f"{update_s * 1e3:.1f} ms ({1 / update_s:.0f} Hz)", flush=True)
+        for name, e in errors.items():
+            print(f"    {name}: {e.rms_mm:.3f} mm, W " + ", ".join(
+                f"{key} {100 * value:.1f}%" for key, value in e.W_relative.items()), flush=True)
         figures.append(row)
     data = np.array(figures)
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
     for tolerance in sorted(set(data[:, 1])):
         pick = data[:, 1] == tolerance
         label = f"ECSW tol {tolerance:g}"
-        axes[0].semilogy(data[pick, 0], data[pick, 3], "o-", label=label)
-        axes[1].semilogy(data[pick, 0], 100 * data[pick, 4], "o-", label=label)
-        axes[2].plot(data[pick, 2], 1 / data[pick, 5], "o", label=label)
+        axes[0].semilogy(data[pick, 0], data[pick, 5], "o-", label=label)
+        axes[1].semilogy(data[pick, 0], 100 * data[pick, 6], "o-", label=label)
+        axes[2].plot(data[pick, 2], 1 / data[pick, 7], "o", label=label)
     axes[0].axhline(0.5, color="k", lw=0.8, ls="--")
     axes[1].axhline(5.0, color="k", lw=0.8, ls="--")
-    axes[0].set(xlabel="modes r", ylabel="worst RMS surface error (mm)")
-    axes[1].set(xlabel="modes r", ylabel="worst W error |dW|/|W| (%)")
+    axes[0].set(xlabel="modes r", ylabel="probe case: RMS surface error (mm)")
+    axes[1].set(xlabel="modes r", ylabel="probe case: W_ef error (%)")
     axes[2].set(xlabel="sampled quadrature points", ylabel="update rate (Hz)")
     for axis in axes:
         axis.grid(alpha=0.3)
     axes[0].legend()
-    fig.suptitle("Reduced P2 model of the coarse Diamond vs its full model (untrained cases)")
+    fig.suptitle("Reduced P2 model of the coarse Diamond vs its full model "
+                 "(0.25 N probe, untrained)")
     fig.tight_layout()
     FIGURE.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(FIGURE, dpi=120)

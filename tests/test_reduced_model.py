@@ -346,6 +346,9 @@ def test_cli_reduce_resumes_from_snapshots_and_writes_a_usable_file(beam, tmp_pa
                          "0")
     assert_one_line_error(no_modes, "--max-modes 0 must be at least 1")
     assert not (tmp_path / "y.rom.npz").exists()
+    loose = softforce("model", "reduce", toml, "-o", tmp_path / "z.rom.npz",
+                      "--ecsw-tolerance", "1.5")
+    assert_one_line_error(loose, "--ecsw-tolerance 1.5 must be in (0, 1)")
 
 
 def test_feature_responses_span_the_compliance_columns(beam):

@@ -140,6 +140,10 @@ def reduce(
     box_fraction: Annotated[float, typer.Option(
         help="Train over this fraction of each cable's [min, max] from the robot file.")
     ] = 1.0,
+    ecsw_tolerance: Annotated[float | None, typer.Option(
+        help="Relative residual of the sampled internal forces over the training set "
+             "(default 0.001; looser: fewer points, a faster update; docs/reduced_model.md).")
+    ] = None,
     keep_snapshots: Annotated[bool, typer.Option(
         help="Keep the training snapshots (OUTPUT.snapshots.npz, ~100 MB) to retrain fast.")
     ] = False,
@@ -151,6 +155,8 @@ def reduce(
     The snapshots are saved beside OUTPUT while training, so a run stopped after them resumes
     there; they are deleted at the end unless --keep-snapshots.
     """
+    import dataclasses
+
     from rich.markup import escape
 
     from softforce_cli.cli.common import progress_bar
@@ -170,6 +176,10 @@ def reduce(
         raise ModelError(f"--max-modes {max_modes} must be at least 1")
     settings = TrainingSettings(max_force_n=max_force, max_modes=max_modes,
                                 box_fraction=box_fraction)
+    if ecsw_tolerance is not None:
+        if not 0.0 < ecsw_tolerance < 1.0:
+            raise ModelError(f"--ecsw-tolerance {ecsw_tolerance:g} must be in (0, 1)")
+        settings = dataclasses.replace(settings, ecsw_tolerance=ecsw_tolerance)
     # the snapshots are kept beside the output: a stopped training resumes after them
     cache = output.with_name(output.name + ".snapshots.npz")
     with progress_bar(f"training {element} reduced model") as advance:
