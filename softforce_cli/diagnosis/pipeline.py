@@ -394,8 +394,9 @@ def _first_order_ci(candidate: Candidate, inputs, nominal: Field, values: np.nda
                     relative: bool, n_eff: float, frames: int, segments: np.ndarray
                     ) -> np.ndarray:
     """(k, 2) 95% intervals of a screened fit (its first-order model's Jacobian)."""
-    field, jacobian = judged_residuals(nominal, nominal.mean_mm - candidate.shift(values, inputs),
-                              shift_jacobian(candidate, inputs, values), relative)
+    left = nominal.mean_mm - candidate.shift(values, inputs)
+    field, jacobian = judged_residuals(nominal, left, shift_jacobian(candidate, inputs, values),
+                                       relative)
     return confidence_intervals(field, jacobian, values, n_eff, frames, segments)
 
 

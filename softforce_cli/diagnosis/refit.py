@@ -275,11 +275,12 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
     for _ in range(REFIT_STEPS):
         if stop_requested():
             break
-        step = _step(field, jacobian @ secant, relative)
-        trial = np.clip(values + step, candidate.lower, candidate.upper)
+        corrected = jacobian @ secant
+        trial = np.clip(values + _step(field, corrected, relative), candidate.lower,
+                        candidate.upper)
         if np.all(np.abs(trial - values) <= np.maximum(
-                REFIT_TOLERANCE * span, 0.5 * half_widths(field, jacobian @ secant, values))):
-            return Refit(candidate, trial, field, jacobian @ secant, prediction, solves, values,
+                REFIT_TOLERANCE * span, 0.5 * half_widths(field, corrected, values))):
+            return Refit(candidate, trial, field, corrected, prediction, solves, values,
                          tuple(unreached))
         for _ in range(OVERSHOOT_HALVINGS + 1):
             moved, trial = _reached(exact, candidate, values, trial, unreached)
@@ -335,8 +336,7 @@ def secant_update(secant: np.ndarray, before: Field, after: Field, jacobian: np.
     common = Field(before.frame[at_before], before.node[at_before],
                    before.mean_mm[at_before] - after.mean_mm[at_after],
                    before.weight[at_before])
-    judged, J = judged_residuals(common, common.mean_mm, jacobian[at_before], relative)
-    seen = _linear_step(judged, J, np.ones(len(shared), dtype=bool))  # J seen ~ the shift
+    seen = _step(common, jacobian[at_before], relative)  # J seen ~ the shift
     updated = secant + np.outer(seen - secant @ step, step) / (step @ step)
     gains = np.linalg.svd(updated, compute_uv=False)
     # a shift lost in the re-association of points (a step too small to see) says nothing
