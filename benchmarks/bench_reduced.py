@@ -8,8 +8,9 @@ untrained load cases. The reduced model is trained once and cached in out/bench_
 
     .venv/bin/python benchmarks/bench_reduced.py [--study] [--tangent] [--solve]
 
---study also sweeps the basis size and the ECSW tolerance on the cached snapshots and writes
-docs/figures/reduced_model_accuracy.png (minutes). --tangent times the ways of forming the
+--study also sweeps the basis size and the ECSW tolerance on the cached snapshots, senses
+benchmarks/bench_sense.py's probe recording through each model, and writes
+docs/figures/reduced_model_accuracy.png (about 45 minutes). --tangent times the ways of forming the
 reduced tangent against each other in this process, interleaved (medians), and the float32
 tangent's effect on W (docs/reduced_model.md, "speed"). --solve times the pieces of a
 reduced static solve's Newton iteration in turn, and the compliance's cable rows now and as
@@ -343,6 +344,8 @@ def study() -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from benchmarks.bench_sense import robot_reading, sense_run
+
     full, _ = reduced_robot()
     base = SETTINGS
     references = [(name, reference(full, name, case), case)
@@ -381,6 +384,14 @@ def study() -> None:
         for name, e in errors.items():
             print(f"    {name}: {e.rms_mm:.3f} mm, W " + ", ".join(
                 f"{key} {100 * value:.1f}%" for key, value in e.W_relative.items()), flush=True)
+        for source in (COARSE, COARSE.parent / "diamond_p2.toml"):  # 51 and 151 features
+            sensed = sense_run(robot_reading(source, path, f"study_{source.stem}.toml"))
+            accuracy_ = sensed["accuracy"]
+            print(f"    sensing the bench's probes, {source.name}: intensity error "
+                  f"{100 * accuracy_['intensity_error_median']:.1f}% / "
+                  f"{100 * accuracy_['intensity_error_p90']:.1f}% (median / 90th pct), "
+                  f"{accuracy_['located']} of {accuracy_['true_contacts']} located",
+                  flush=True)
         figures.append(row)
     data = np.array(figures)
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))

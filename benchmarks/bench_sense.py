@@ -90,17 +90,27 @@ def robot_with_element(element: str) -> Path:
         return ROBOT
     if element == "p2-shipped":
         return ROBOT.parent / "diamond_p2.toml"
-    OUT.mkdir(parents=True, exist_ok=True)
-    path = OUT / f"diamond_{element}.toml"
     source = ROBOT.parent / ("diamond_p2.toml" if element == "p2-shipped-rom" else ROBOT.name)
-    text = source.read_text().replace('element = "p2"\n', "")
-    mesh = f'path = "{ROBOT.parent / "diamond_coarse.vtu"}"\nelement = "{element}"'
     if element.endswith("-rom"):
         from benchmarks.bench_reduced import reduced_robot
 
-        reduced = reduced_robot()[1].config.mesh.reduced
-        mesh = (f'path = "{ROBOT.parent / "diamond_coarse.vtu"}"\nelement = "p2"\n'
-                f'reduced = "{reduced}"')
+        return robot_reading(source, reduced_robot()[1].config.mesh.reduced,
+                             f"diamond_{element}.toml")
+    return _robot_copy(source, f'element = "{element}"', f"diamond_{element}.toml")
+
+
+def robot_reading(source: Path, reduced: Path, name: str) -> Path:
+    """A copy of the sample robot file `source` (in OUT, as `name`) that reads the reduced
+    model `reduced`."""
+    return _robot_copy(source, f'element = "p2"\nreduced = "{Path(reduced).resolve()}"', name)
+
+
+def _robot_copy(source: Path, mesh_keys: str, name: str) -> Path:
+    """`source` with its [mesh] element replaced by `mesh_keys`, its mesh path absolute."""
+    OUT.mkdir(parents=True, exist_ok=True)
+    text = source.read_text().replace('element = "p2"\n', "")
+    mesh = f'path = "{ROBOT.parent / "diamond_coarse.vtu"}"\n{mesh_keys}'
+    path = OUT / name
     path.write_text(text.replace('path = "diamond_coarse.vtu"', mesh))
     return path
 
