@@ -31,6 +31,7 @@ from softforce_cli.diagnosis.selection import (
 from softforce_cli.diagnosis.sensitivities import ColumnSet, column_set, state_columns
 from softforce_cli.diagnosis.solves import SETTINGS, SolveCache, StateSolutions, solve_states
 from softforce_cli.diagnosis.states import States, group_states, trajectory_segments
+from softforce_cli.diagnosis.support import one_sided_contact, support_basis
 from softforce_cli.fem.compliance import linearize
 from softforce_cli.fem.statics import solve_equilibrium
 from softforce_cli.model.effect_physics import fe_model_with_effects
@@ -464,3 +465,48 @@ def test_the_refit_learns_how_far_the_exact_model_moves(exact_shift):
     slope = (moved(truth + step) - moved(truth - step)) / (2 * step)
     reported = np.linalg.lstsq(pattern.reshape(-1, 1), fitted.jacobian[:, 0], rcond=None)[0][0]
     assert abs(reported / slope - 1.0) < 0.15
+
+
+def test_one_sided_contact_is_the_quadratic_programs_answer():
+    """The plate's contact forces (nnls on the compliance's Cholesky factor) against the same
+    complementarity problem as a quadratic program solved by cvxpy with Clarabel, and its
+    conditions: no penetration, no pull, no force where a node is off the plate."""
+    cvxpy = pytest.importorskip("cvxpy")
+    rng = np.random.default_rng(3)
+    shape = rng.normal(size=(12, 12))
+    compliance = shape @ shape.T / 12 + 0.2 * np.eye(12)
+    gap = rng.normal(size=12)
+    forces = one_sided_contact(compliance, gap)
+    lam = cvxpy.Variable(12)
+    cvxpy.Problem(cvxpy.Minimize(0.5 * cvxpy.quad_form(lam, compliance) + gap @ lam),
+                  [lam >= 0]).solve(solver=cvxpy.CLARABEL)
+    np.testing.assert_allclose(forces, lam.value, atol=1e-6)
+    after = gap + compliance @ forces
+    assert forces.min() >= 0.0 and after.min() > -1e-9
+    assert np.abs(forces * after).max() < 1e-9
+    assert (forces > 0).sum() not in (0, 12)  # some nodes touch, some do not
+
+
+@pytest.mark.parametrize("height_mm", [-10.0, -7.0, -3.0])
+def test_the_screened_plate_matches_the_plate_solved(diamond_state, height_mm):
+    """A plate under the Diamond's arms at three heights (0.2-0.7 mm RMS of the body
+    propped): the screening's contact, solved on one linearisation (diagnosis.support),
+    against the exact equilibrium with the penalty plane (fem.supports), within 5% (at
+    -5.5 mm the body's rotation under the plate brings two more nodes onto it than the
+    linearisation does: 12%, which the refit's exact solves take up)."""
+    robot, actuation, solution, columns, names = diamond_state
+    solutions = StateSolutions(robot, robot.element_name, actuation[None],
+                               solution.positions_mm[None], solution.cable_tensions_n[None],
+                               columns[None], None, names)
+    support = support_basis(solutions, SolveCache(None))
+    assert support.lower_mm == robot.mesh.nodes_mm[:, 2].min()
+    predicted = support.motion_mm(height_mm)[0]
+    plate = fe_model_with_effects(robot, (make_effect("support_contact",
+                                                      table_z_mm=height_mm),))
+    propped = solve_equilibrium(plate, robot.cable_inputs(actuation),
+                                start_mm=solution.positions_mm)
+    n = robot.mesh.node_count
+    exact = propped.positions_mm[:n] - solution.positions_mm[:n]
+    assert np.sqrt(np.mean(np.sum(exact**2, axis=1))) > 0.2
+    assert np.linalg.norm(predicted - exact) < 0.05 * np.linalg.norm(exact)
+    assert not support.motion_mm(support.lower_mm).any()  # a plate at the table: no contact

@@ -16,6 +16,7 @@ from softforce_cli.diagnosis.background import Table
 from softforce_cli.diagnosis.hypotheses import Inputs
 from softforce_cli.diagnosis.residuals import Field, surface_normals
 from softforce_cli.diagnosis.sensitivities import ColumnSet
+from softforce_cli.diagnosis.support import SupportBasis
 from softforce_cli.model.effects import FrameContext
 
 
@@ -23,7 +24,8 @@ from softforce_cli.model.effects import FrameContext
 class Basis:
     """predicted_mm (S, n, 3), normals (S, n, 3), normal_columns (S, C, n) mm per unit,
     state_inputs (S, a), cable_columns (S, a, n, 3) mm per unit input; table: the observed
-    table (diagnosis.background) or None."""
+    table (diagnosis.background) or None; support: the plate's screening data
+    (diagnosis.support) or None."""
 
     predicted_mm: np.ndarray
     normals: np.ndarray
@@ -36,6 +38,7 @@ class Basis:
     state_inputs: np.ndarray
     cable_columns: np.ndarray
     table: Table | None = None
+    support: SupportBasis | None = None
 
     def inputs_for(self, field: Field) -> Inputs:
         state = self.of_frame[field.frame]
@@ -43,19 +46,19 @@ class Basis:
                       self.predicted_mm[state, field.node],
                       self.normal_columns[state, :, field.node].T, self.column_set,
                       self.contexts, self.cables, self.robot_from_camera, self.predicted_mm,
-                      self.state_inputs, self.cable_columns, self.table)
+                      self.state_inputs, self.cable_columns, self.table, self.support)
 
 
 def build_basis(predicted_mm: np.ndarray, columns: np.ndarray, surface_faces: np.ndarray,
                 column_set: ColumnSet, of_frame: np.ndarray,
                 contexts: tuple[FrameContext, ...], cables: tuple[str, ...],
                 robot_from_camera: RigidTransform, state_inputs: np.ndarray,
-                table: Table | None = None) -> Basis:
+                table: Table | None = None, support: SupportBasis | None = None) -> Basis:
     """From the predictions (S, n, 3), the sensitivity columns (S, C, n, 3), the states'
-    inputs (S, a) and the observed table."""
+    inputs (S, a), the observed table and the plate's screening data."""
     normals = np.stack([surface_normals(p, surface_faces) for p in predicted_mm])
     projected = np.einsum("scni,sni->scn", columns, normals)
     cable = [column_set.index(f"cable.{name}") for name in cables]
     return Basis(predicted_mm, normals, projected, column_set, of_frame, contexts, cables,
                  robot_from_camera, np.asarray(state_inputs, dtype=float), columns[:, cable],
-                 table)
+                 table, support)

@@ -17,7 +17,10 @@ sensitivity columns of diagnosis.sensitivities:
   is another state's input is predicted exactly (a first-order model about the frame's own
   state underestimates a 3 mm slack by 20%: the cable's response changes along the pull);
 - depth_bias, extrinsic_offset: exact, the predicted nodes moved as the camera would show them
-  (model.effects.observed_points_robot).
+  (model.effects.observed_points_robot);
+- support_contact: the plate's contact solved on each state's linearisation
+  (diagnosis.support), for a plate height between where the robot stands and the highest
+  node that may touch one.
 
 Several targets of one effect (cable_slack on each cable) are separate hypotheses; the best
 one is the effect's location.
@@ -34,6 +37,7 @@ from softforce_cli.calibration.rigid import RigidTransform
 from softforce_cli.diagnosis.background import Table
 from softforce_cli.diagnosis.residuals import Field
 from softforce_cli.diagnosis.sensitivities import ColumnSet
+from softforce_cli.diagnosis.support import SupportBasis
 from softforce_cli.model.effects import (
     EFFECTS,
     Effect,
@@ -66,7 +70,7 @@ FREE: dict[str, tuple[tuple[str, float, float], ...]] = {
 # own static mismatch with the body is not taken for physics), they are screened on the
 # absolute residual too, where they must explain most of that mismatch to be accepted.
 ABSOLUTE = frozenset({"gravity", "stiffness_scale", "compliant_base", "depth_bias",
-                      "extrinsic_offset"})
+                      "extrinsic_offset", "support_contact"})
 # Where creep's fit starts its time constant (s): the geometric middle of its bounds in the
 # holds of a typical recording (0.5-30 s).
 CREEP_START_S = 3.0
@@ -89,6 +93,7 @@ class Inputs:
     library_inputs : (S, a) every state's commanded inputs.
     cable_columns  : (S, a, n, 3) every state's cable columns (mm per unit input).
     table      : the table under the robot as observed (diagnosis.background), or None.
+    support    : the plate's screening data (diagnosis.support), or None.
     """
 
     field: Field
@@ -104,6 +109,7 @@ class Inputs:
     library_inputs: np.ndarray
     cable_columns: np.ndarray
     table: Table | None = None
+    support: SupportBasis | None = None
 
     def column(self, name: str) -> np.ndarray:
         return self.columns[self.column_set.index(name)]
@@ -158,6 +164,10 @@ class Hypothesis:
             hold = np.array([c.hold_s for c in inputs.contexts])[inputs.field.frame]
             relaxed = 1.0 - np.exp(-hold / v["time_constant_s"])
             return -v["relaxation"] * relaxed * inputs.column("stiffness")
+        if self.name == "support_contact":
+            motion = inputs.support.motion_mm(v["table_z_mm"])
+            return np.einsum("ei,ei->e", motion[inputs.state, inputs.field.node],
+                             inputs.normals)
         if self.kind == "actuation":
             return _interpolated_shift(effective_actuation(
                 (self.effect(values),), inputs.contexts, inputs.cables), inputs)
@@ -193,9 +203,12 @@ def _clipped(name: str, values: dict[str, float]) -> dict[str, float]:
             for k, v in values.items()}
 
 
-def hypotheses(robot: Robot, column_set: ColumnSet) -> tuple[Hypothesis, ...]:
-    """Every candidate diagnosis screens for `robot` (support_contact is not among them:
-    docs/diagnosis.md, limits)."""
+def hypotheses(robot: Robot, column_set: ColumnSet, support: SupportBasis | None = None
+               ) -> tuple[Hypothesis, ...]:
+    """Every candidate diagnosis screens for `robot`; support_contact only with the plate's
+    screening data (`support`: no node of the robot may touch a plate without it), its
+    height from where the robot stands (which touches nothing that stays above it) to the
+    highest node that may touch one."""
     regions = [c.removeprefix("region.") for c in column_set.names if c.startswith("region.")]
     cables = [spec.name for spec in robot.cable_specs if spec.control == "displacement"]
     out = []
@@ -207,6 +220,10 @@ def hypotheses(robot: Robot, column_set: ColumnSet) -> tuple[Hypothesis, ...]:
         for target in targets:
             out.append(Hypothesis(name, target, tuple(p for p, _, _ in free), start, lower,
                                   upper))
+    if support is not None:
+        lowest = np.array([support.lower_mm])
+        out.append(Hypothesis("support_contact", None, ("table_z_mm",), lowest, lowest,
+                              np.array([support.upper_mm])))
     return tuple(out)
 
 

@@ -1,8 +1,8 @@
-"""The whole diagnosis: observations -> states -> one solve and one tangent per state ->
-nominal residuals -> every hypothesis screened on the first-order model (fit and
-leave-one-segment-out) -> the best refitted on the exact model -> forward selection of up to
-two effects -> a camera effect only the markers see, when the clouds find nothing -> verdict,
-groups, location."""
+"""The whole diagnosis: observations -> states -> one solve and one tangent per state (and
+the responses of the nodes a plate may touch) -> nominal residuals -> every hypothesis
+screened on the first-order model (fit and leave-one-segment-out) -> the best refitted on
+the exact model -> forward selection of up to two effects -> a camera effect only the
+markers see, when the clouds find nothing -> verdict, groups, location."""
 
 from __future__ import annotations
 
@@ -41,6 +41,7 @@ from softforce_cli.diagnosis.selection import (
 from softforce_cli.diagnosis.sensitivities import column_set
 from softforce_cli.diagnosis.solves import SolveCache, solve_states
 from softforce_cli.diagnosis.states import States, group_states, trajectory_segments
+from softforce_cli.diagnosis.support import support_basis
 from softforce_cli.errors import SolverError
 from softforce_cli.model.effects import frame_contexts
 from softforce_cli.model.regions import node_regions
@@ -175,6 +176,12 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
     if solutions is None:
         result.interrupted = True
         return result
+    support = support_basis(solutions, cache,
+                            lambda done, total: report("plate contacts", done, total),
+                            stop_requested)
+    if stop_requested():
+        result.interrupted = True
+        return result
     points = [f.points_mm for f in observations.frames]
     mesh = robot.mesh
     result.predicted_mm = solutions.predicted_mm
@@ -191,14 +198,14 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
     table = observed_table((f.table_plane for f in observations.frames), mesh.nodes_mm)
     basis = build_basis(solutions.predicted_mm, solutions.mesh_columns, mesh.surface_faces,
                         columns, states.of_frame, contexts, cables,
-                        observations.robot_from_camera, states.actuation, table)
+                        observations.robot_from_camera, states.actuation, table, support)
     # the physics' own fields are cleared from the scatter first: drift within a hold is not
     # camera noise (selection.noise_floor_mm)
     floor = noise_floor_mm(nominal, states.of_frame, basis.normal_columns)
     result.noise_floor_mm = floor
     inputs = basis.inputs_for(nominal)
     result.stage = "screening"
-    tasks = [(Candidate((h,)), relative) for h in hypotheses(robot, columns)
+    tasks = [(Candidate((h,)), relative) for h in hypotheses(robot, columns, support)
              for relative in (True, False) if relative or h.name in ABSOLUTE]
     for i, (candidate, relative) in enumerate(tasks):
         if stop_requested():

@@ -18,6 +18,10 @@ One factorisation of K per state serves every column:
   free nodes through the elements and shortens the cables by H d;
 - cables: du = a unit of one taut cable's input (slack, friction and creep's columns are
   built from these and the stiffness column in diagnosis.hypotheses).
+
+support_contact has no column (a plane below the body changes nothing until it touches):
+contact_responses gives the held-cable responses to upward forces at the nodes that may
+touch it, from which diagnosis.support solves the contact itself.
 """
 
 from __future__ import annotations
@@ -111,6 +115,21 @@ def state_columns(robot: Robot, columns: ColumnSet, lin: Linearization,
     inputs -= H @ prescribed  # the clamp's give shortens the cables too
     taut = displacement & (tensions_n > 0.0)
     motion = prescribed + _constrained_response(lin, H[taut], forces, inputs[taut])
+    return motion.reshape(model.node_count, 3, -1).transpose(2, 0, 1)
+
+
+def contact_responses(lin: Linearization, tensions_n: np.ndarray, controls: tuple[str, ...],
+                      nodes: np.ndarray) -> np.ndarray:
+    """(m, N, 3) mm per N: the motion of every FE node under a unit upward force at each of
+    `nodes` (m,), with the taut displacement-controlled cables held at their inputs (the
+    cables' `controls`, tensions (a,) N), at the equilibrium of `lin`."""
+    model: FEModel = lin.model
+    forces = np.zeros((3 * model.node_count, len(nodes)))
+    forces[3 * np.asarray(nodes) + 2, np.arange(len(nodes))] = 1.0
+    taut = (np.array([c == "displacement" for c in controls], dtype=bool)
+            & (np.asarray(tensions_n) > 0.0))
+    rows = model.cable_jacobian(lin.positions_mm)[taut]
+    motion = _constrained_response(lin, rows, forces, np.zeros((len(rows), len(nodes))))
     return motion.reshape(model.node_count, 3, -1).transpose(2, 0, 1)
 
 

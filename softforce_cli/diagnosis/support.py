@@ -1,0 +1,168 @@
+"""A plate under the body (support_contact), screened by solving the contact at every state.
+
+A one-sided plane has no first-order signature: below the body it changes nothing, and
+where it touches it props the body by as much as the body sags onto it. So the screening
+solves the contact itself on each state's linearisation. The nodes that may touch a plate
+(`contact_candidates`: free surface nodes not facing up that sink below their rest height
+and below the highest plate searched) get their held-cable responses to upward unit forces
+(diagnosis.sensitivities.contact_responses); at state s, with their predicted heights z_s
+(m,) and compliance C_s (m, m: the height change of each under a unit force at each), a
+plate at height h pushes those above it at rest (the others pass through its hole, as
+fem.supports.SupportPlane does) with forces lam >= 0 such that
+
+    z_s + C_s lam >= h,    lam >= 0,    lam . (z_s + C_s lam - h) = 0,
+
+the linear complementarity problem of min 1/2 lam^T C_s lam + (z_s - h)^T lam over lam >= 0
+(`one_sided_contact`). The body then moves by the responses times lam. The exact refit
+solves the plate itself (fem.supports, diagnosis.refit).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+
+from softforce_cli.diagnosis.sensitivities import contact_responses
+from softforce_cli.diagnosis.solves import Progress, SolveCache, StateSolutions
+from softforce_cli.fem.compliance import linearize
+from softforce_cli.model.robot import Robot
+
+# Plates are searched from where the robot stands (its lowest rest point, the table) up to
+# this height above it: a support props the lower part of a body, and every node that may
+# touch one costs a solve per state.
+SUPPORT_REACH_MM = 40.0
+# A node whose outward normal points up more than this (its z component) faces away from
+# any plate below it.
+UPWARD_NORMAL = 0.5
+# A node that sinks less than this below its rest height in every state cannot press on a
+# plate by more than the camera resolves.
+MIN_SINK_MM = 0.5
+# Bump when what the cached responses mean changes.
+SUPPORT_VERSION = 1
+
+
+@dataclass(frozen=True, eq=False)
+class SupportBasis:
+    """What the screening of a plate needs, per state (S of them).
+
+    nodes      : (m,) mesh nodes that may touch a plate.
+    rest_z_mm  : (m,) their rest heights (robot frame).
+    heights_mm : (S, m) their predicted heights.
+    compliance : (S, m, m) mm/N: height change of node i under a unit upward force at j.
+    responses  : (S, m, n, 3) mm/N: every mesh node's motion under those forces (float32).
+    lower_mm, upper_mm : the plate heights searched.
+    """
+
+    nodes: np.ndarray
+    rest_z_mm: np.ndarray
+    heights_mm: np.ndarray
+    compliance: np.ndarray
+    responses: np.ndarray
+    lower_mm: float
+    upper_mm: float
+
+    def forces_n(self, height_mm: float) -> np.ndarray:
+        """(S, m) N: the plate's upward force on each node at every state."""
+        above = self.rest_z_mm > height_mm
+        forces = np.zeros(self.heights_mm.shape)
+        for s, z in enumerate(self.heights_mm):
+            gap = z[above] - height_mm
+            if (gap < 0.0).any():
+                forces[s, above] = one_sided_contact(
+                    self.compliance[s][np.ix_(above, above)], gap)
+        return forces
+
+    def motion_mm(self, height_mm: float) -> np.ndarray:
+        """(S, n, 3) mm: every mesh node's motion with a plate at height_mm (robot frame)."""
+        forces = self.forces_n(height_mm)
+        motion = np.zeros((len(forces), *self.responses.shape[2:]))
+        for s in np.flatnonzero(forces.any(axis=1)):
+            motion[s] = np.tensordot(forces[s], self.responses[s], axes=1)
+        return motion
+
+
+def one_sided_contact(compliance: np.ndarray, gap_mm: np.ndarray) -> np.ndarray:
+    """(m,) N: lam >= 0 with gap + C lam >= 0 and lam . (gap + C lam) = 0, for a symmetric
+    positive definite compliance C (m, m) mm/N and gaps (m,) mm (negative: below the plane).
+
+    With C = L L^T, min 1/2 lam^T C lam + gap^T lam = 1/2 |L^T lam + L^-1 gap|^2 - const,
+    a non-negative least-squares problem (scipy's nnls, an active-set method: exact in
+    finitely many steps).
+    """
+    symmetric = 0.5 * (compliance + compliance.T)
+    lower = scipy.linalg.cholesky(symmetric, lower=True)
+    target = -scipy.linalg.solve_triangular(lower, gap_mm, lower=True)
+    return scipy.optimize.nnls(lower.T, target)[0]
+
+
+def contact_candidates(robot: Robot, predicted_mm: np.ndarray
+                       ) -> tuple[np.ndarray, float, float]:
+    """(nodes (m,), lowest plate height, highest) for the predicted mesh nodes (S, n, 3): the
+    free surface nodes not facing up that sink at least MIN_SINK_MM below their rest height
+    and below the highest plate in some state, and the plate heights worth searching (from
+    the robot's lowest rest point to SUPPORT_REACH_MM above it, or the highest candidate's
+    rest height when lower)."""
+    mesh = robot.mesh
+    rest = mesh.nodes_mm
+    lowest = float(rest[:, 2].min())
+    highest = lowest + SUPPORT_REACH_MM
+    nodes = np.setdiff1d(mesh.surface_nodes, robot.fixed_nodes)
+    deepest = predicted_mm[:, nodes, 2].min(axis=0)
+    keep = ((mesh.vertex_normals[nodes, 2] < UPWARD_NORMAL) & (rest[nodes, 2] > lowest)
+            & (deepest < rest[nodes, 2] - MIN_SINK_MM) & (deepest < highest))
+    nodes = nodes[keep]
+    if len(nodes):
+        highest = min(highest, float(rest[nodes, 2].max()))
+    return nodes, lowest, highest
+
+
+def support_basis(solutions: StateSolutions, cache: SolveCache,
+                  progress: Progress | None = None,
+                  stop_requested: Callable[[], bool] = lambda: False
+                  ) -> SupportBasis | None:
+    """The plate's screening data at every state of `solutions` (one tangent factorisation
+    and m solves per distinct state, cached with the states' solves); None when no node may
+    touch a plate, or when stop_requested() turns true."""
+    robot = solutions.robot
+    nodes, lower, upper = contact_candidates(robot, solutions.predicted_mm)
+    if not len(nodes) or upper <= lower:
+        return None
+    model = robot.nominal_fe_model
+    n = robot.mesh.node_count
+    controls = tuple(spec.control for spec in robot.cable_specs)
+    tag = hashlib.sha256(nodes.tobytes()).hexdigest()[:12]
+    count = solutions.count
+    responses = np.empty((count, len(nodes), n, 3), dtype=np.float32)
+    done: dict[bytes, int] = {}  # states of equal inputs share their responses
+    factor = None
+    for s in range(count):
+        if stop_requested():
+            return None
+        twin = done.setdefault(solutions.actuation[s].tobytes(), s)
+        if twin != s:
+            responses[s] = responses[twin]
+        else:
+            inputs = robot.cable_inputs(solutions.actuation[s])
+            key = f"{cache.key(model, inputs)}-support{SUPPORT_VERSION}-{tag}"
+            stored = cache.load(key)
+            if stored is not None and stored["responses"].shape == responses[s].shape:
+                responses[s] = stored["responses"]
+            else:
+                lin = linearize(model, solutions.positions_mm[s], solutions.tensions_n[s],
+                                factorization=factor)
+                factor = lin.factorization
+                responses[s] = contact_responses(lin, solutions.tensions_n[s], controls,
+                                                 nodes)[:, :n]
+                cache.store(key, responses=responses[s])
+        if progress is not None:
+            progress(s + 1, count)
+    # C[s, i, j]: node i's height change under a unit force at node j
+    compliance = responses[:, :, nodes, 2].transpose(0, 2, 1).astype(float)
+    return SupportBasis(nodes, robot.mesh.nodes_mm[nodes, 2],
+                        solutions.predicted_mm[:, nodes, 2], compliance, responses, lower,
+                        upper)
