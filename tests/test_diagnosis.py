@@ -10,11 +10,13 @@ from softforce_cli.diagnosis.background import Table
 from softforce_cli.diagnosis.fitting import Candidate, HeldOut, fit_values, held_out
 from softforce_cli.diagnosis.hypotheses import Hypothesis, Inputs
 from softforce_cli.diagnosis.pipeline import (
+    Diagnosis,
     Final,
     Screened,
     camera_seen_by_markers,
     fallback_candidates,
     names_the_mismatch,
+    screened_rivals,
 )
 from softforce_cli.diagnosis.refit import ExactModel
 from softforce_cli.diagnosis.report import group_reason
@@ -353,6 +355,32 @@ def test_fallback_refits_other_targets_that_generalise_and_agree_with_the_table(
     chosen = fallback_candidates(screened, [north], table)
     assert [s.candidate.label for s in chosen] == ["regional_stiffness[south]",
                                                    "stiffness_scale"]
+
+
+def test_rivals_of_a_named_effect_are_those_its_screening_cannot_beat():
+    """Before a group is formed, the exact model judges the screened effects of other names
+    that improve on the nominal model as much as the named one's screening (its
+    per-segment held-out errors, selection.indistinct), agree with the table and were not
+    refitted yet: the study's plate under the arms screens alongside a lighter and a
+    stiffer body (support_-10 seed 1), which are then refitted; not an effect clearly
+    worse, nor one that moves the table where the camera does not show it, nor one
+    refitted already."""
+    gains = 1.8 * np.array([0.30, 0.25, 0.28, 0.32, 0.27, 0.24, 0.31, 0.26])
+    scatter = 0.02 * np.array([1, -1, 1, -1, 1, -1, 1, -1])  # per segment, no trend
+    plate = _screened("support_contact", None, gains, relative=False)
+    lighter = _screened("gravity", None, gains + scatter, relative=False)
+    stiffer = _screened("stiffness_scale", None, gains - scatter - 0.002, relative=False)
+    camera = _screened("depth_bias", None, 0.7 * gains, relative=False)  # clearly worse
+    moved = _screened("extrinsic_offset", None, gains, relative=False, table_misfit_mm=5.0)
+    result = Diagnosis(None, None, screened=[plate, lighter, stiffer, camera, moved])
+    chosen = Final(plate, None, plate.heldout, plate.ci95, True, None)
+    table = Table(np.zeros((25, 3)), np.zeros(25))
+    assert all(clear_improvement(s.heldout, 0.27) for s in (plate, lighter, stiffer, camera))
+    rivals = screened_rivals(result, chosen, 0.27, table)
+    assert [s.candidate.label for s in rivals] == ["gravity", "stiffness_scale"]
+    result.finals = [chosen, Final(lighter, None, lighter.heldout, lighter.ci95, True, None)]
+    assert [s.candidate.label for s in screened_rivals(result, chosen, 0.27, table)] == [
+        "stiffness_scale"]
 
 
 def test_a_group_says_why_its_effects_are_one_signature():

@@ -57,6 +57,8 @@ FALLBACK_REFITS = 2
 FALLBACK_Z = 1.0
 # Candidates tried as the second effect of forward selection.
 SECOND_CANDIDATES = 3
+# Screened rivals of a named effect refitted before they may be grouped with it.
+RIVAL_REFITS = 2
 # Regions whose RMS systematic residual exceeds the whole body's by this factor hold it.
 REGION_FACTOR = 1.25
 Stage = Callable[[str, int, int | None], None]
@@ -257,6 +259,18 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
         # slides the surfaces along themselves, which only the markers see
         camera = _camera_from_markers(result, exact, inputs, relative_nominal, floor)
         result.selected = [] if camera is None else [camera]
+    rivals = [s for chosen in result.selected
+              if names_the_mismatch(chosen, relative_nominal, floor)
+              for s in screened_rivals(result, chosen, floor, table)]
+    if rivals:
+        # a group says the data cannot tell them apart: the exact model judges the rivals
+        # the screening could not separate from a named effect (a plate under the arms
+        # screens as well as a lighter body, which the exact model leaves half the change
+        # across frames unexplained)
+        result.stage = "rivals"
+        if not _refit(result, exact, rivals, nominal, segments, floor, n_eff, frames, report,
+                      stop_requested):
+            return result
     result.stage = "verdict"
     _verdict(result, floor, basis, solutions, segments, n_eff)
     result.stage = "done"
@@ -371,6 +385,26 @@ def fallback_candidates(screened: list[Screened], tried: list[Screened],
     return [s for s in screened if (s.candidate.label, s.relative) not in done
             and s.heldout.gain_z() > FALLBACK_Z
             and _table_agrees(s.table_misfit_mm, table)][:FALLBACK_REFITS]
+
+
+def screened_rivals(result: Diagnosis, chosen: Final, floor: float, table: Table | None
+                    ) -> list[Screened]:
+    """The screened effects (best target of each) other than the chosen one's that clearly
+    improve on the nominal model, agree with the table and whose screening the chosen
+    one's does not beat (selection.indistinct), not refitted yet: one signature to first
+    order, for the exact model to judge (a 1% depth scale and a 4.7 mm camera move along
+    its axis, 80 mm of depth at 470, are one on the exact model too). None for a camera
+    judged on the markers."""
+    if chosen.screened.channel == "markers":
+        return []
+    refitted = {(f.screened.candidate.label, f.screened.relative) for f in result.finals}
+    name = chosen.screened.candidate.hypotheses[0].name
+    return [s for s in _best_per_effect(result.screened)
+            if s.key != chosen.screened.key and s.candidate.hypotheses[0].name != name
+            and (s.candidate.label, s.relative) not in refitted
+            and clear_improvement(s.heldout, floor)
+            and _table_agrees(s.table_misfit_mm, table)
+            and indistinct(s.heldout, chosen.screened.heldout)][:RIVAL_REFITS]
 
 
 def names_the_mismatch(final: Final, relative_nominal_mm: float, floor: float) -> bool:
@@ -504,16 +538,9 @@ def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
                     and indistinct(s.heldout, chosen.heldout)]
         else:
             near = [f.candidate.label for f in result.finals if f is not chosen
-                    and f.accepted and indistinct(f.heldout, chosen.heldout)]
-            # screened effects as good as the chosen one's screening: one signature on this
-            # data (a 1% depth scale and a 4.7 mm camera move along its axis, 80 mm of depth
-            # at 470)
-            near += [s.candidate.label for s in _best_per_effect(result.screened)
-                     if s.key != chosen.screened.key and s.candidate.label not in near
-                     and s.candidate.hypotheses[0].name != chosen.candidate.hypotheses[0].name
-                     and clear_improvement(s.heldout, floor)
-                     and _table_agrees(s.table_misfit_mm, basis.table)
-                     and indistinct(s.heldout, chosen.screened.heldout)]
+                    and f.screened.relative == chosen.screened.relative
+                    and f.accepted and names_the_mismatch(f, relative_before, floor)
+                    and indistinct(f.heldout, chosen.heldout)]
         if near:
             result.groups.append([chosen.candidate.label, *near])
     # where the nominal residual is; a named effect's target first. A partial fit's target
