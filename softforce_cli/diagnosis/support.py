@@ -48,18 +48,21 @@ SUPPORT_VERSION = 1
 
 @dataclass(frozen=True, eq=False)
 class SupportBasis:
-    """What the screening of a plate needs, per state (S of them).
+    """What the screening of a plate needs at each of the U distinct inputs of the states
+    (states of equal inputs, a hold and its loading, share one equilibrium).
 
     nodes      : (m,) mesh nodes that may touch a plate.
     rest_z_mm  : (m,) their rest heights (robot frame).
-    heights_mm : (S, m) their predicted heights.
-    compliance : (S, m, m) mm/N: height change of node i under a unit upward force at j.
-    responses  : (S, m, n, 3) mm/N: every mesh node's motion under those forces (float32).
+    of_state   : (S,) each state's distinct input.
+    heights_mm : (U, m) their predicted heights.
+    compliance : (U, m, m) mm/N: height change of node i under a unit upward force at j.
+    responses  : (U, m, n, 3) mm/N: every mesh node's motion under those forces (float32).
     lower_mm, upper_mm : the plate heights searched.
     """
 
     nodes: np.ndarray
     rest_z_mm: np.ndarray
+    of_state: np.ndarray
     heights_mm: np.ndarray
     compliance: np.ndarray
     responses: np.ndarray
@@ -67,23 +70,24 @@ class SupportBasis:
     upper_mm: float
 
     def forces_n(self, height_mm: float) -> np.ndarray:
-        """(S, m) N: the plate's upward force on each node at every state."""
+        """(U, m) N: the plate's upward force on each node at every distinct input."""
         above = self.rest_z_mm > height_mm
         forces = np.zeros(self.heights_mm.shape)
-        for s, z in enumerate(self.heights_mm):
+        for u, z in enumerate(self.heights_mm):
             gap = z[above] - height_mm
             if (gap < 0.0).any():
-                forces[s, above] = one_sided_contact(
-                    self.compliance[s][np.ix_(above, above)], gap)
+                forces[u, above] = one_sided_contact(
+                    self.compliance[u][np.ix_(above, above)], gap)
         return forces
 
     def motion_mm(self, height_mm: float) -> np.ndarray:
-        """(S, n, 3) mm: every mesh node's motion with a plate at height_mm (robot frame)."""
+        """(S, n, 3) mm: every mesh node's motion with a plate at height_mm (robot frame), per
+        state."""
         forces = self.forces_n(height_mm)
         motion = np.zeros((len(forces), *self.responses.shape[2:]))
-        for s in np.flatnonzero(forces.any(axis=1)):
-            motion[s] = np.tensordot(forces[s], self.responses[s], axes=1)
-        return motion
+        for u in np.flatnonzero(forces.any(axis=1)):
+            motion[u] = np.tensordot(forces[u], self.responses[u], axes=1)
+        return motion[self.of_state]
 
 
 def one_sided_contact(compliance: np.ndarray, gap_mm: np.ndarray) -> np.ndarray:
@@ -136,33 +140,29 @@ def support_basis(solutions: StateSolutions, cache: SolveCache,
     n = robot.mesh.node_count
     controls = tuple(spec.control for spec in robot.cable_specs)
     tag = hashlib.sha256(nodes.tobytes()).hexdigest()[:12]
-    count = solutions.count
-    responses = np.empty((count, len(nodes), n, 3), dtype=np.float32)
-    done: dict[bytes, int] = {}  # states of equal inputs share their responses
+    _, firsts, of_state = np.unique(solutions.actuation, axis=0, return_index=True,
+                                    return_inverse=True)
+    responses = np.empty((len(firsts), len(nodes), n, 3), dtype=np.float32)
     factor = None
-    for s in range(count):
+    for u, s in enumerate(firsts):
         if stop_requested():
             return None
-        twin = done.setdefault(solutions.actuation[s].tobytes(), s)
-        if twin != s:
-            responses[s] = responses[twin]
+        inputs = robot.cable_inputs(solutions.actuation[s])
+        key = f"{cache.key(model, inputs)}-support{SUPPORT_VERSION}-{tag}"
+        stored = cache.load(key)
+        if stored is not None and stored["responses"].shape == responses[u].shape:
+            responses[u] = stored["responses"]
         else:
-            inputs = robot.cable_inputs(solutions.actuation[s])
-            key = f"{cache.key(model, inputs)}-support{SUPPORT_VERSION}-{tag}"
-            stored = cache.load(key)
-            if stored is not None and stored["responses"].shape == responses[s].shape:
-                responses[s] = stored["responses"]
-            else:
-                lin = linearize(model, solutions.positions_mm[s], solutions.tensions_n[s],
-                                factorization=factor)
-                factor = lin.factorization
-                responses[s] = contact_responses(lin, solutions.tensions_n[s], controls,
-                                                 nodes)[:, :n]
-                cache.store(key, responses=responses[s])
+            lin = linearize(model, solutions.positions_mm[s], solutions.tensions_n[s],
+                            factorization=factor)
+            factor = lin.factorization
+            responses[u] = contact_responses(lin, solutions.tensions_n[s], controls,
+                                             nodes)[:, :n]
+            cache.store(key, responses=responses[u])
         if progress is not None:
-            progress(s + 1, count)
-    # C[s, i, j]: node i's height change under a unit force at node j
+            progress(u + 1, len(firsts))
+    # C[u, i, j]: node i's height change under a unit force at node j
     compliance = responses[:, :, nodes, 2].transpose(0, 2, 1).astype(float)
-    return SupportBasis(nodes, robot.mesh.nodes_mm[nodes, 2],
-                        solutions.predicted_mm[:, nodes, 2], compliance, responses, lower,
-                        upper)
+    return SupportBasis(nodes, robot.mesh.nodes_mm[nodes, 2], of_state.ravel(),
+                        solutions.predicted_mm[firsts][:, nodes, 2], compliance, responses,
+                        lower, upper)
