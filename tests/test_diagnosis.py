@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from softforce_cli.calibration.rigid import RigidTransform
+from softforce_cli.diagnosis import support
 from softforce_cli.diagnosis.background import Table
 from softforce_cli.diagnosis.fitting import Candidate, HeldOut, fit_values, held_out
 from softforce_cli.diagnosis.hypotheses import Hypothesis, Inputs
@@ -33,7 +34,7 @@ from softforce_cli.diagnosis.selection import (
 from softforce_cli.diagnosis.sensitivities import ColumnSet, column_set, state_columns
 from softforce_cli.diagnosis.solves import SETTINGS, SolveCache, StateSolutions, solve_states
 from softforce_cli.diagnosis.states import States, group_states, trajectory_segments
-from softforce_cli.diagnosis.support import one_sided_contact, support_basis
+from softforce_cli.diagnosis.support import contact_candidates, one_sided_contact, support_basis
 from softforce_cli.fem.compliance import linearize
 from softforce_cli.fem.statics import solve_equilibrium
 from softforce_cli.model.effect_physics import fe_model_with_effects
@@ -538,3 +539,22 @@ def test_the_screened_plate_matches_the_plate_solved(diamond_state, height_mm):
     assert np.sqrt(np.mean(np.sum(exact**2, axis=1))) > 0.2
     assert np.linalg.norm(predicted - exact) < 0.05 * np.linalg.norm(exact)
     assert not support.motion_mm(support.lower_mm).any()  # a plate at the table: no contact
+
+
+def test_plate_candidates_are_the_free_nodes_that_sink_without_facing_up(monkeypatch):
+    """The nodes a plate may touch (diagnosis.support): free surface nodes, not facing up,
+    that sink 0.5 mm or more and reach below the highest plate searched; capped to the
+    lowest reaching."""
+    robot = load_robot(SAMPLE_ROBOT)
+    rest = robot.mesh.nodes_mm
+    sunk = rest.copy()
+    sunk[:, 2] -= np.where(rest[:, 0] > 0.0, 1.0, 0.2)  # only the +x half sinks enough
+    nodes, lower, upper = contact_candidates(robot, sunk[None])
+    assert lower == rest[:, 2].min() and lower < upper <= lower + support.SUPPORT_REACH_MM
+    assert len(nodes) > 10
+    assert np.all(rest[nodes, 0] > 0.0) and np.all(robot.mesh.vertex_normals[nodes, 2] < 0.5)
+    assert not np.isin(nodes, robot.fixed_nodes).any()
+    assert np.all(sunk[nodes, 2] < lower + support.SUPPORT_REACH_MM)
+    monkeypatch.setattr(support, "MAX_CONTACT_NODES", 10)
+    lowest = contact_candidates(robot, sunk[None])[0]
+    assert len(lowest) == 10 and sunk[lowest, 2].max() <= sunk[np.setdiff1d(nodes, lowest), 2].min()

@@ -42,6 +42,9 @@ UPWARD_NORMAL = 0.5
 # A node that sinks less than this below its rest height in every state cannot press on a
 # plate by more than the camera resolves.
 MIN_SINK_MM = 0.5
+# At most this many nodes, the lowest reaching: each costs a solve per input, n x 3 floats of
+# memory per input and a column of every contact problem (118 on the coarse Diamond).
+MAX_CONTACT_NODES = 200
 # Bump when what the cached responses mean changes.
 SUPPORT_VERSION = 1
 
@@ -108,9 +111,9 @@ def contact_candidates(robot: Robot, predicted_mm: np.ndarray
                        ) -> tuple[np.ndarray, float, float]:
     """(nodes (m,), lowest plate height, highest) for the predicted mesh nodes (S, n, 3): the
     free surface nodes not facing up that sink at least MIN_SINK_MM below their rest height
-    and below the highest plate in some state, and the plate heights worth searching (from
-    the robot's lowest rest point to SUPPORT_REACH_MM above it, or the highest candidate's
-    rest height when lower)."""
+    and below the highest plate in some state (the MAX_CONTACT_NODES that reach lowest), and
+    the plate heights worth searching (from the robot's lowest rest point to
+    SUPPORT_REACH_MM above it, or the highest candidate's rest height when lower)."""
     mesh = robot.mesh
     rest = mesh.nodes_mm
     lowest = float(rest[:, 2].min())
@@ -119,7 +122,8 @@ def contact_candidates(robot: Robot, predicted_mm: np.ndarray
     deepest = predicted_mm[:, nodes, 2].min(axis=0)
     keep = ((mesh.vertex_normals[nodes, 2] < UPWARD_NORMAL) & (rest[nodes, 2] > lowest)
             & (deepest < rest[nodes, 2] - MIN_SINK_MM) & (deepest < highest))
-    nodes = nodes[keep]
+    nodes = nodes[keep][np.argsort(deepest[keep], kind="stable")[:MAX_CONTACT_NODES]]
+    nodes.sort()
     if len(nodes):
         highest = min(highest, float(rest[nodes, 2].max()))
     return nodes, lowest, highest
