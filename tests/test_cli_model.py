@@ -35,7 +35,22 @@ def test_show_json_is_the_only_stdout(robot_dir, tmp_path):
     assert summary["tetrahedra"] > 4000 and summary["features"] == 51
     assert summary["mass_kg"] == pytest.approx(0.5)
     assert [c["name"] for c in summary["cables"]] == ["north", "west", "south", "east"]
+    assert summary["effects"] == {}
     assert picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_show_lists_the_files_effects(robot_dir, tmp_path):
+    """A fitted robot file's effects (diagnose writes them) in the table and the JSON."""
+    fitted = robot_dir / "fitted.toml"
+    fitted.write_text((robot_dir / "diamond.toml").read_text() + '\n[[effect]]\n'
+                      'name = "support_contact"\ntable_z_mm = -7.25\n\n[[effect]]\n'
+                      'name = "cable_slack"\ncable = "north"\nslack_mm = 2.5\n')
+    summary = json.loads(softforce("model", "show", fitted, "--json").stdout)
+    assert summary["effects"] == {"support_contact": {"table_z_mm": -7.25},
+                                  "cable_slack[north]": {"slack_mm": 2.5}}
+    table = softforce("model", "show", fitted).stdout
+    assert "effect support_contact" in table and "table_z_mm = -7.25" in table
+    assert "slack_mm = 2.5" in table
 
 
 def test_solve_writes_the_deformed_mesh_in_input_node_order(robot_dir, tmp_path):

@@ -78,6 +78,9 @@ def show(
                                                 f"{cable['max']}], pull {cable['pull_point_mm']}")
     table.add_row("feature points", str(summary["features"]))
     table.add_row("markers", ", ".join(summary["markers"]) or "none")
+    for label, parameters in summary["effects"].items():
+        table.add_row(f"effect {label}", ", ".join(f"{name} = {value:.6g}" if isinstance(
+            value, float) else f"{name} = {value}" for name, value in parameters.items()))
     if picture is not None:
         table.add_row("picture", str(picture))
     stdout.print(table)

@@ -11,7 +11,8 @@ from softforce_cli.model.robot import Robot
 
 
 def robot_summary(robot: Robot) -> dict[str, Any]:
-    """Nodes, tetrahedra, volume, mass, supports, cables, features and markers of a robot."""
+    """Nodes, tetrahedra, volume, mass, supports, cables, features, markers and the file's
+    effects (docs/effects.md: what `diagnose` fitted, as robot.fitted.toml carries it)."""
     mesh = robot.mesh
     material = robot.config.material
     return {
@@ -41,6 +42,10 @@ def robot_summary(robot: Robot) -> dict[str, Any]:
         "features": len(robot.feature_nodes),
         "markers": {mid: np.round(p, 4).tolist()
                     for mid, p in zip(robot.marker_ids, robot.marker_positions_mm, strict=True)},
+        # an infinite value (a neutral one) as its string: JSON has no infinity
+        "effects": {effect.label: {name: value if np.isfinite(value) else str(value)
+                                   for name, value in effect.parameters.items()}
+                    for effect in robot.effects},
     }
 
 
