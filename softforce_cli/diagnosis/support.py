@@ -32,9 +32,9 @@ from softforce_cli.diagnosis.solves import Progress, SolveCache, StateSolutions
 from softforce_cli.fem.compliance import linearize
 from softforce_cli.model.robot import Robot
 
-# Plates are searched from where the robot stands (its lowest rest point, the table) up to
-# this height above it: a support props the lower part of a body, and every node that may
-# touch one costs a solve per state.
+# Plates are searched from the lowest point the body reaches up to this height above it: a
+# support props the lower part of a body, and every node that may touch one costs a solve
+# per input.
 SUPPORT_REACH_MM = 40.0
 # A node whose outward normal points up more than this (its z component) faces away from
 # any plate below it.
@@ -109,24 +109,28 @@ def one_sided_contact(compliance: np.ndarray, gap_mm: np.ndarray) -> np.ndarray:
 
 def contact_candidates(robot: Robot, predicted_mm: np.ndarray
                        ) -> tuple[np.ndarray, float, float]:
-    """(nodes (m,), lowest plate height, highest) for the predicted mesh nodes (S, n, 3): the
-    free surface nodes not facing up that sink at least MIN_SINK_MM below their rest height
-    and below the highest plate in some state (the MAX_CONTACT_NODES that reach lowest), and
-    the plate heights worth searching (from the robot's lowest rest point to
-    SUPPORT_REACH_MM above it, or the highest candidate's rest height when lower)."""
+    """(nodes (m,), lowest plate height, highest) for the predicted mesh nodes (S, n, 3).
+
+    The nodes: free surface nodes not facing up that sink at least MIN_SINK_MM below their
+    rest height in some state (the MAX_CONTACT_NODES that reach lowest). The heights: from
+    the lowest any of them reaches (a plate there touches nothing) up SUPPORT_REACH_MM, or
+    to the highest candidate's rest height when lower (a plate above a node's rest height
+    lets it through); the nodes that never reach that high are left out. Neither assumes
+    where the robot stands: a body on a table, a finger hanging from a mount.
+    """
     mesh = robot.mesh
     rest = mesh.nodes_mm
-    lowest = float(rest[:, 2].min())
-    highest = lowest + SUPPORT_REACH_MM
     nodes = np.setdiff1d(mesh.surface_nodes, robot.fixed_nodes)
     deepest = predicted_mm[:, nodes, 2].min(axis=0)
-    keep = ((mesh.vertex_normals[nodes, 2] < UPWARD_NORMAL) & (rest[nodes, 2] > lowest)
-            & (deepest < rest[nodes, 2] - MIN_SINK_MM) & (deepest < highest))
+    keep = (mesh.vertex_normals[nodes, 2] < UPWARD_NORMAL) & (
+        deepest < rest[nodes, 2] - MIN_SINK_MM)
+    if not keep.any():
+        return nodes[:0], 0.0, 0.0
+    lowest = float(deepest[keep].min())
+    keep &= deepest < lowest + SUPPORT_REACH_MM
     nodes = nodes[keep][np.argsort(deepest[keep], kind="stable")[:MAX_CONTACT_NODES]]
     nodes.sort()
-    if len(nodes):
-        highest = min(highest, float(rest[nodes, 2].max()))
-    return nodes, lowest, highest
+    return nodes, lowest, min(lowest + SUPPORT_REACH_MM, float(rest[nodes, 2].max()))
 
 
 def support_basis(solutions: StateSolutions, cache: SolveCache,
