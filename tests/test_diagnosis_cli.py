@@ -180,3 +180,23 @@ def test_an_interrupted_run_keeps_what_it_reached(slack_run, cache, tmp_path):
     assert document["verdict"] is None
     assert len(document["effects"]) == 4  # the hypotheses screened before the stop
     assert not (tmp_path / "out" / "robot.fitted.toml").exists()
+
+
+def test_a_run_stopped_among_the_plate_contacts_says_so(slack_run, cache, tmp_path):
+    """A stop requested while the plate's responses are computed (diagnosis.support) ends
+    there: diagnosis.json marked interrupted at stage `plate contacts`, nothing screened."""
+    from softforce_cli.diagnosis.run import DiagnoseInputs, run_diagnosis
+
+    _, _, calibration = slack_run
+    reached = []
+
+    def stage(name, done, total):
+        if name == "plate contacts":
+            reached.append(done)
+
+    inputs = DiagnoseInputs((SLACK,), SAMPLE_ROBOT, calibration, tmp_path / "out",
+                            cache=cache)
+    diagnosis = run_diagnosis(inputs, stage, lambda: len(reached) > 1)
+    document = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
+    assert diagnosis.interrupted and document["stage"] == "plate contacts"
+    assert document["interrupted"] and document["effects"] == []

@@ -178,6 +178,7 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
     if solutions is None:
         result.interrupted = True
         return result
+    result.stage = "plate contacts"
     support = support_basis(solutions, cache,
                             lambda done, total: report("plate contacts", done, total),
                             stop_requested)
