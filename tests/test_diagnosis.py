@@ -516,6 +516,17 @@ def test_one_sided_contact_is_the_quadratic_programs_answer():
     assert (forces > 0).sum() not in (0, 12)  # some nodes touch, some do not
 
 
+def _propped_mm(robot, actuation: np.ndarray, solution, height_mm: float) -> np.ndarray:
+    """(n, 3) mm: how far the exact plate at height_mm moves the mesh nodes of an
+    equilibrium (the effect library's penalty plane, fem.supports)."""
+    plate = fe_model_with_effects(robot, (make_effect("support_contact",
+                                                      table_z_mm=height_mm),))
+    propped = solve_equilibrium(plate, robot.cable_inputs(actuation),
+                                start_mm=solution.positions_mm)
+    n = robot.mesh.node_count
+    return propped.positions_mm[:n] - solution.positions_mm[:n]
+
+
 @pytest.mark.parametrize("height_mm", [-10.0, -7.0, -3.0])
 def test_the_screened_plate_matches_the_plate_solved(diamond_state, height_mm):
     """A plate under the Diamond's arms at three heights (0.2-0.7 mm RMS of the body
@@ -530,12 +541,7 @@ def test_the_screened_plate_matches_the_plate_solved(diamond_state, height_mm):
     support = support_basis(solutions, SolveCache(None))
     assert support.lower_mm == solution.positions_mm[support.nodes, 2].min()
     predicted = support.motion_mm(height_mm)[0]
-    plate = fe_model_with_effects(robot, (make_effect("support_contact",
-                                                      table_z_mm=height_mm),))
-    propped = solve_equilibrium(plate, robot.cable_inputs(actuation),
-                                start_mm=solution.positions_mm)
-    n = robot.mesh.node_count
-    exact = propped.positions_mm[:n] - solution.positions_mm[:n]
+    exact = _propped_mm(robot, actuation, solution, height_mm)
     assert np.sqrt(np.mean(np.sum(exact**2, axis=1))) > 0.2
     assert np.linalg.norm(predicted - exact) < 0.05 * np.linalg.norm(exact)
     assert not support.motion_mm(support.lower_mm).any()  # below every node: no contact
@@ -578,12 +584,7 @@ def test_a_plate_under_a_hanging_beam_is_screened(tmp_path, height_mm):
                                              solution.cable_tensions_n)[None], None, columns)
     support = support_basis(solutions, SolveCache(None))
     assert support.lower_mm < height_mm < robot.mesh.nodes_mm[:, 2].min() < support.upper_mm
-    plate = fe_model_with_effects(robot, (make_effect("support_contact",
-                                                      table_z_mm=height_mm),))
-    propped = solve_equilibrium(plate, robot.cable_inputs(actuation),
-                                start_mm=solution.positions_mm)
-    n = robot.mesh.node_count
-    exact = propped.positions_mm[:n] - solution.positions_mm[:n]
+    exact = _propped_mm(robot, actuation, solution, height_mm)
     assert np.sqrt(np.mean(np.sum(exact**2, axis=1))) > 0.4
     predicted = support.motion_mm(height_mm)[0]
     assert np.linalg.norm(predicted - exact) < 0.03 * np.linalg.norm(exact)

@@ -158,45 +158,29 @@ def test_bad_input_is_one_line(slack_run, tmp_path):
     assert_one_line_error(still, "actuation never changes")
 
 
-def test_an_interrupted_run_keeps_what_it_reached(slack_run, cache, tmp_path):
+@pytest.mark.parametrize(("stage_name", "calls", "effects"), [
+    ("screening", 4, 4), ("plate contacts", 2, 0)])
+def test_an_interrupted_run_keeps_what_it_reached(slack_run, cache, tmp_path, stage_name,
+                                                  calls, effects):
     """A stop requested during the screening (Ctrl-C under deferred_interrupt) leaves a
     diagnosis.json marked interrupted, with the stage reached and the effects screened so
-    far, and no fitted robot."""
-    from softforce_cli.diagnosis.run import DiagnoseInputs, run_diagnosis
-
-    _, _, calibration = slack_run
-    screened = []
-
-    def stage(name, done, total):
-        if name == "screening":
-            screened.append(done)
-
-    inputs = DiagnoseInputs((SLACK,), SAMPLE_ROBOT, calibration, tmp_path / "out",
-                            cache=cache)
-    diagnosis = run_diagnosis(inputs, stage, lambda: len(screened) > 3)
-    assert diagnosis.interrupted and diagnosis.verdict is None
-    document = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
-    assert document["interrupted"] and document["stage"] == "screening"
-    assert document["verdict"] is None
-    assert len(document["effects"]) == 4  # the hypotheses screened before the stop
-    assert not (tmp_path / "out" / "robot.fitted.toml").exists()
-
-
-def test_a_run_stopped_among_the_plate_contacts_says_so(slack_run, cache, tmp_path):
-    """A stop requested while the plate's responses are computed (diagnosis.support) ends
-    there: diagnosis.json marked interrupted at stage `plate contacts`, nothing screened."""
+    far, and no fitted robot; during the plate's responses (diagnosis.support), at stage
+    `plate contacts` with nothing screened."""
     from softforce_cli.diagnosis.run import DiagnoseInputs, run_diagnosis
 
     _, _, calibration = slack_run
     reached = []
 
     def stage(name, done, total):
-        if name == "plate contacts":
+        if name == stage_name:
             reached.append(done)
 
     inputs = DiagnoseInputs((SLACK,), SAMPLE_ROBOT, calibration, tmp_path / "out",
                             cache=cache)
-    diagnosis = run_diagnosis(inputs, stage, lambda: len(reached) > 1)
+    diagnosis = run_diagnosis(inputs, stage, lambda: len(reached) >= calls)
+    assert diagnosis.interrupted and diagnosis.verdict is None
     document = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
-    assert diagnosis.interrupted and document["stage"] == "plate contacts"
-    assert document["interrupted"] and document["effects"] == []
+    assert document["interrupted"] and document["stage"] == stage_name
+    assert document["verdict"] is None
+    assert len(document["effects"]) == effects  # the hypotheses screened before the stop
+    assert not (tmp_path / "out" / "robot.fitted.toml").exists()

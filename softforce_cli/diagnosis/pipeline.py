@@ -260,9 +260,10 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
         # slides the surfaces along themselves, which only the markers see
         camera = _camera_from_markers(result, exact, inputs, relative_nominal, floor)
         result.selected = [] if camera is None else [camera]
-    rivals = [s for chosen in result.selected
-              if names_the_mismatch(chosen, relative_nominal, floor)
-              for s in screened_rivals(result, chosen, floor, table)]
+    # (a rival of both selected effects is refitted once)
+    rivals = list(dict.fromkeys(s for chosen in result.selected
+                                if names_the_mismatch(chosen, relative_nominal, floor)
+                                for s in screened_rivals(result, chosen, floor, table)))
     if rivals:
         # a group says the data cannot tell them apart: the exact model judges the rivals
         # the screening could not separate from a named effect (a plate under the arms
