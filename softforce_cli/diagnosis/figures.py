@@ -58,7 +58,7 @@ def save_residual_map(diagnosis: Diagnosis, path: Path, force: bool) -> None:
         axis.set_ylabel("y (mm)")
         axis.set_zlabel("z (mm)")
     label = ("residual across frames, static baseline removed (RMS, mm)" if relative
-             else "mean normal residual (mm), + outside model")
+             else "mean signed distance (mm), + outside model")
     figure.colorbar(art, ax=figure.axes, label=label)
     with atomic_path(path, force) as temporary:
         figure.savefig(temporary, dpi=110, format="png")

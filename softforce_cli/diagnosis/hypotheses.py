@@ -70,7 +70,7 @@ FREE: dict[str, tuple[tuple[str, float, float], ...]] = {
 # own static mismatch with the body is not taken for physics), they are screened on the
 # absolute residual too, where they must explain most of that mismatch to be accepted.
 ABSOLUTE = frozenset({"gravity", "stiffness_scale", "compliant_base", "depth_bias",
-                      "extrinsic_offset", "support_contact"})
+                      "extrinsic_offset", "support_contact", "material_nonlinearity"})
 # Where creep's fit starts its time constant (s): the geometric middle of its bounds in the
 # holds of a typical recording (0.5-30 s).
 CREEP_START_S = 3.0

@@ -188,10 +188,12 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
     points = [f.points_mm for f in observations.frames]
     mesh = robot.mesh
     result.predicted_mm = solutions.predicted_mm
+    camera = observations.robot_from_camera.translation_mm
     nominal = measure(points, solutions.predicted_mm, states.of_frame, mesh.surface_nodes,
-                      mesh.surface_faces)
+                      mesh.surface_faces, camera)
     uncorrected = nominal if solutions.given_mm is None else measure(
-        points, solutions.given_mm, states.of_frame, mesh.surface_nodes, mesh.surface_faces)
+        points, solutions.given_mm, states.of_frame, mesh.surface_nodes, mesh.surface_faces,
+        camera)
     result.nominal, result.uncorrected = nominal, uncorrected
     frames = len(observations.frames)
     recordings = np.array([f.recording for f in observations.frames])
@@ -273,6 +275,17 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
         if not _refit(result, exact, rivals, nominal, segments, floor, n_eff, frames, report,
                       stop_requested):
             return result
+        better = better_rival(result, relative_nominal, floor)
+        if better is not None:
+            # the exact model prefers a rival the screening had ranked behind (a base of
+            # 5 N/mm screens behind a softer body, and refitted leaves 0.33 mm to its 0.38):
+            # it is the first effect, and the second is sought anew with it
+            result.selected = [better]
+            result.stage = "second effect"
+            second = _second(exact, result, better, inputs, nominal, segments, floor, n_eff,
+                             frames, report, stop_requested)
+            if second is not None:
+                result.selected.append(second)
     result.stage = "verdict"
     _verdict(result, floor, basis, solutions, segments, n_eff)
     result.stage = "done"
@@ -409,6 +422,20 @@ def screened_rivals(result: Diagnosis, chosen: Final, floor: float, table: Table
             and indistinct(s.heldout, chosen.screened.heldout)][:RIVAL_REFITS]
 
 
+def better_rival(result: Diagnosis, relative_nominal_mm: float, floor: float
+                 ) -> Final | None:
+    """The refitted effect that would be named instead of the first selected one: judged in
+    the same mode, naming the mismatch, and leaving clearly less held-out error (not
+    indistinct); None when the first stands."""
+    chosen = result.selected[0]
+    rivals = [f for f in result.finals if f is not chosen
+              and f.screened.relative == chosen.screened.relative
+              and names_the_mismatch(f, relative_nominal_mm, floor)
+              and f.heldout.rms_after_mm < chosen.heldout.rms_after_mm
+              and not indistinct(f.heldout, chosen.heldout)]
+    return min(rivals, key=lambda f: f.heldout.rms_after_mm, default=None)
+
+
 def names_the_mismatch(final: Final, relative_nominal_mm: float, floor: float) -> bool:
     """Whether a refitted candidate would be named: accepted and, relative to the static
     baseline, explaining the mismatch rather than fitting part of it (_verdict). An effect
@@ -543,6 +570,9 @@ def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
                     and f.screened.relative == chosen.screened.relative
                     and f.accepted and names_the_mismatch(f, relative_before, floor)
                     and indistinct(f.heldout, chosen.heldout)]
+        twin = load_scale_twin(chosen, result.robot)
+        if twin is not None and twin not in near:
+            near.append(twin)
         if near:
             result.groups.append([chosen.candidate.label, *near])
     # where the nominal residual is; a named effect's target first. A partial fit's target
@@ -591,6 +621,29 @@ def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
             "noise_floor_mm": round(result.marker_floor_mm, 3),
             "rms_nominal_mm": round(result.markers.rms(), 3)},
     }
+
+
+def load_scale_twin(chosen: Final, robot: Robot) -> str | None:
+    """The effect that is the same model as the chosen one, whatever its own refit reached:
+    with every cable displacement-controlled, a body s times as stiff under gravity g is in
+    equilibrium where the body is under g / s (elastic forces scale with the modulus, the
+    cables' tensions follow), so a stiffness scale and an untilted gravity scale are one
+    fit (the study's 30% more gravity: a body 0.7595 as stiff, gravity's own refit stopped
+    at a snap-through with its tilt at -4 degrees). None for another effect, a gravity
+    tilted beyond its interval, or a force-controlled cable."""
+    if any(spec.control != "displacement" for spec in robot.cable_specs):
+        return None
+    candidate = chosen.screened.candidate
+    hypothesis = candidate.hypotheses[0]
+    if len(candidate.hypotheses) > 1 or chosen.screened.channel != "clouds":
+        return None
+    if hypothesis.name == "stiffness_scale":
+        return "gravity"
+    if hypothesis.name == "gravity":
+        tilted = [low > 0 or high < 0 for name, (low, high)
+                  in zip(hypothesis.free, chosen.ci95, strict=True) if name.startswith("tilt")]
+        return None if any(tilted) else "stiffness_scale"
+    return None
 
 
 def node_systematic_mm(field: Field, node_count: int) -> tuple[np.ndarray, np.ndarray]:

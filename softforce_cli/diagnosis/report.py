@@ -27,7 +27,8 @@ MODES = {True: "relative to a static baseline per node", False: "absolute"}
 # keyed by effect names without targets.
 GROUP_REASONS: dict[frozenset[str], str] = {
     frozenset({"gravity", "stiffness_scale"}): "with displacement-controlled cables a "
-    "heavier body and a softer one sag alike: the shape depends on g / E",
+    "heavier body and a softer one sag alike: the shape depends on g / E (a stiffness "
+    "scale s is a gravity scale 1 / s)",
     frozenset({"compliant_base", "stiffness_scale"}): "a body that gives at its clamp and a "
     "softer body both sink further under their weight, by shapes this recording does not "
     "tell apart",

@@ -1,10 +1,15 @@
 """Residuals between observed robot points and a predicted FE surface.
 
-Each observed point is associated with its nearest predicted surface node; its residual is
-the signed normal distance n . (q - x) to the tangent plane there (positive outside the
-model): the point-to-plane distance of ICP, exact for a flat patch and good to a fraction of
-a millimetre at the coarse Diamond's node spacing. Per-frame means per node make the residual
-field on the mesh that fitting and localisation use.
+Each observed point's residual is its signed distance to the predicted surface: the distance
+to the closest point of the closest predicted triangle, positive outside the model. The point
+is evidence of that triangle's corner nearest the closest point; per-frame means per node
+make the residual field on the mesh that fitting and localisation use.
+
+The distance is to the triangles, not to the nearest node's tangent plane (ICP's
+point-to-plane distance): on the coarse Diamond, whose arms are boxes meshed at 8.5 mm, the
+averaged normal of a node on an edge leans 45 degrees off both faces, and the tangent planes
+put about 0.7 mm RMS of their own into every frame, which the static effects had taken for
+physics (docs/diagnosis.md, limits).
 """
 
 from __future__ import annotations
@@ -12,13 +17,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
+import open3d as o3d
 
 from softforce_cli.model.mesh import vertex_normals
 
-# Points further than this from their nearest predicted surface node (tangentially or along
-# the normal) are not this node's evidence: stray points (segmentation leftovers, the table's
-# edge) or a patch of the robot the model misses entirely. 3x the largest effect of interest.
+# Points further than this from the predicted surface are not its evidence: stray points
+# (segmentation leftovers, the table's edge) or a patch of the robot the model misses
+# entirely. 3x the largest effect of interest.
 MAX_ASSOCIATION_MM = 15.0
 
 
@@ -27,7 +32,7 @@ class NodeResiduals:
     """A frame's residual field on the predicted surface.
 
     nodes     : (s,) surface node indices (mesh numbering) the field is on.
-    mean_mm   : (s,) mean signed normal residual of the points associated with each node (0
+    mean_mm   : (s,) mean signed distance of the points associated with each node (0
                 where none).
     count     : (s,) number of points associated with each node.
     """
@@ -42,28 +47,58 @@ def surface_normals(positions_mm: np.ndarray, surface_faces: np.ndarray) -> np.n
     return vertex_normals(positions_mm, surface_faces)
 
 
-def point_residuals(points_mm: np.ndarray, surface_positions_mm: np.ndarray,
-                    surface_normals_: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Signed normal residuals (p,) mm of points (p, 3) against surface nodes (s, 3) with unit
-    normals (s, 3), and each point's node (p,) int64 into the surface arrays; points further
-    than MAX_ASSOCIATION_MM get node -1 and residual NaN."""
-    distance, nearest = cKDTree(surface_positions_mm).query(points_mm)
-    nearest = np.asarray(nearest, dtype=np.int64)
-    offset = points_mm - surface_positions_mm[nearest]
-    normal = np.einsum("pi,pi->p", offset, surface_normals_[nearest])
-    far = (distance > MAX_ASSOCIATION_MM) | (np.abs(normal) > MAX_ASSOCIATION_MM)
-    return np.where(far, np.nan, normal), np.where(far, -1, nearest)
+def camera_facing(positions_mm: np.ndarray, surface_faces: np.ndarray,
+                  camera_mm: np.ndarray) -> np.ndarray:
+    """The triangles (k, 3) of a configuration (n, 3) whose outward side faces a camera at
+    camera_mm (3,) (robot frame)."""
+    corners = positions_mm[surface_faces]
+    outward = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    return surface_faces[np.einsum("ki,ki->k", outward, camera_mm - corners.mean(axis=1)) > 0]
+
+
+def point_residuals(points_mm: np.ndarray, positions_mm: np.ndarray,
+                    surface_faces: np.ndarray, camera_mm: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distances (p,) mm of points (p, 3) to the surface triangles (k, 3) of a
+    configuration (n, 3), positive outside, and each point's node (p,) int64 (mesh
+    numbering): the corner of its closest triangle nearest the closest point. Points further
+    than MAX_ASSOCIATION_MM from the surface get node -1 and residual NaN.
+
+    With camera_mm (3,), the camera's centre in the robot frame, only the triangles facing
+    it are candidates: a seen point lies on a face the camera sees, and an arm 14 mm thick
+    that sags 8 mm more than predicted would otherwise put its seen top on the predicted
+    underside (and the fit would lift that)."""
+    if camera_mm is not None:
+        surface_faces = camera_facing(positions_mm, surface_faces, camera_mm)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.asarray(positions_mm, dtype=np.float32)),
+                        o3d.core.Tensor(np.asarray(surface_faces, dtype=np.uint32)))
+    closest = scene.compute_closest_points(
+        o3d.core.Tensor(np.asarray(points_mm, dtype=np.float32)))
+    triangle = closest["primitive_ids"].numpy().astype(np.int64)
+    uv = closest["primitive_uvs"].numpy().astype(float)
+    corners = positions_mm[surface_faces[triangle]]
+    outward = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    offset = points_mm - closest["points"].numpy().astype(float)
+    distance = np.linalg.norm(offset, axis=1)
+    signed = np.where(np.einsum("pi,pi->p", offset, outward) < 0, -distance, distance)
+    barycentric = np.column_stack([1.0 - uv.sum(axis=1), uv])
+    node = surface_faces[triangle, np.argmax(barycentric, axis=1)].astype(np.int64)
+    far = distance > MAX_ASSOCIATION_MM
+    return np.where(far, np.nan, signed), np.where(far, -1, node)
 
 
 def node_residuals(points_mm: np.ndarray, positions_mm: np.ndarray, surface_nodes: np.ndarray,
-                   normals: np.ndarray) -> NodeResiduals:
-    """The residual field of points (p, 3) against the surface nodes (s,) of a configuration
-    (n, 3) with node normals (n, 3)."""
-    residual, node = point_residuals(points_mm, positions_mm[surface_nodes],
-                                     normals[surface_nodes])
+                   surface_faces: np.ndarray, camera_mm: np.ndarray | None = None
+                   ) -> NodeResiduals:
+    """The residual field of points (p, 3) against the surface (nodes (s,), triangles (k, 3)
+    in mesh numbering) of a configuration (n, 3), seen from camera_mm (point_residuals)."""
+    residual, node = point_residuals(points_mm, positions_mm, surface_faces, camera_mm)
     kept = node >= 0
-    count = np.bincount(node[kept], minlength=len(surface_nodes))
-    total = np.bincount(node[kept], weights=residual[kept], minlength=len(surface_nodes))
+    slot = np.full(len(positions_mm), -1, dtype=np.int64)
+    slot[surface_nodes] = np.arange(len(surface_nodes))
+    count = np.bincount(slot[node[kept]], minlength=len(surface_nodes))
+    total = np.bincount(slot[node[kept]], weights=residual[kept], minlength=len(surface_nodes))
     mean = np.divide(total, count, out=np.zeros(len(surface_nodes)), where=count > 0)
     return NodeResiduals(surface_nodes, mean, count)
 
@@ -74,7 +109,7 @@ class Field:
 
     frame  : (E,) frame index.
     node   : (E,) mesh node index.
-    mean_mm: (E,) mean signed normal residual of the node's points in that frame.
+    mean_mm: (E,) mean signed distance of the node's points in that frame.
     weight : (E,) number of points.
     """
 
@@ -93,14 +128,15 @@ class Field:
 
 
 def measure(points_mm: list[np.ndarray], positions_mm: np.ndarray, of_frame: np.ndarray,
-            surface_nodes: np.ndarray, surface_faces: np.ndarray) -> Field:
+            surface_nodes: np.ndarray, surface_faces: np.ndarray,
+            camera_mm: np.ndarray | None = None) -> Field:
     """The residual entries of frames' points (t lists of (p, 3)) against the predicted mesh
-    nodes of their states (S, n, 3); of_frame (t,) the state of each frame."""
-    normals = [surface_normals(p, surface_faces) for p in positions_mm]
+    nodes of their states (S, n, 3), seen from camera_mm (3,); of_frame (t,) the state of
+    each frame."""
     frames, nodes, means, weights = [], [], [], []
     for i, points in enumerate(points_mm):
-        s = of_frame[i]
-        field = node_residuals(points, positions_mm[s], surface_nodes, normals[s])
+        field = node_residuals(points, positions_mm[of_frame[i]], surface_nodes, surface_faces,
+                               camera_mm)
         seen = field.count > 0
         frames.append(np.full(int(seen.sum()), i))
         nodes.append(surface_nodes[seen])
