@@ -107,6 +107,8 @@ def test_seen_points_are_measured_to_the_faces_the_camera_sees():
     assert np.all(positions[node, 2] == 10.0)
     blind, _ = point_residuals(seen_top, positions, faces)
     np.testing.assert_allclose(blind, -3.0, atol=1e-4)  # the underside's distance
+    inside = point_residuals(seen_top, positions, faces, np.array([20.0, 20.0, 5.0]))
+    assert np.all(np.isnan(inside[0])) and np.all(inside[1] == -1)  # no face seen: none
 
 
 def test_states_split_loading_from_unloading_and_segments_are_contiguous():

@@ -70,6 +70,8 @@ def point_residuals(points_mm: np.ndarray, positions_mm: np.ndarray,
     underside (and the fit would lift that)."""
     if camera_mm is not None:
         surface_faces = camera_facing(positions_mm, surface_faces, camera_mm)
+    if len(surface_faces) == 0:  # nothing of the model faces the camera: no evidence
+        return np.full(len(points_mm), np.nan), np.full(len(points_mm), -1, dtype=np.int64)
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(np.asarray(positions_mm, dtype=np.float32)),
                         o3d.core.Tensor(np.asarray(surface_faces, dtype=np.uint32)))
