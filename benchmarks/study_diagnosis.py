@@ -85,28 +85,24 @@ CASES: dict[str, tuple] = {
                       "translation_x_mm = 3.0", "translation_x_mm", 3.0),
     "extrinsic_rz_1": ("extrinsic_offset", None, 'name = "extrinsic_offset"\n'
                        "rotation_z_deg = 1.0", "rotation_z_deg", 1.0),
-    # the truth's Neo-Hookean law against a robot file of small-strain linear elasticity
+    # the truth's Neo-Hookean law against a robot file of another law (LAW_OF_ROBOT)
     "material_linear": ("material_nonlinearity", None, "", "blend", 1.0),
     "material_corotational": ("material_nonlinearity", None, "", "blend", 1.0),
-    # a plate the lower arms rest on, the base block through a hole in it: not screened
-    # (docs/diagnosis.md, limits), kept to show what the verdict makes of it
+    # a plate the lower arms rest on, the base block through a hole in it
     "support_-10": ("support_contact", None, 'name = "support_contact"\ntable_z_mm = -10.0',
                     "table_z_mm", -10.0),
     "support_-5.5": ("support_contact", None, 'name = "support_contact"\ntable_z_mm = -5.5',
                      "table_z_mm", -5.5),
     "hidden_mass_north": ("unexplained", "north", "load", None, None),
 }
-# Cases diagnosed with another robot file than COARSE: {case: its material law}. The truth of
-# every case has the Neo-Hookean law and the coarse robot file the corotational one, so a
-# material case cannot conceal the corotational-to-Neo-Hookean blend in the truth: its truth
-# would be the clean case's (docs/diagnosis.md); it gives the robot file the linear law
-# instead, whose blend towards Neo-Hookean the diagnosis then has to find, on the clean
-# case's recordings.
-# The law of the study's bodies, and of the robot file diagnose is given: a clean recording
-# then differs from its model by the mesh alone. The material cases give the robot file
-# another law against the clean recordings (the default corotational one sags 0.6 mm more
-# under gravity than the Neo-Hookean body: docs/diagnosis.md, tenth run).
+# The law of the study's bodies, and of the robot file diagnose is given (a copy of COARSE):
+# a clean recording then differs from its model by the mesh alone. The material cases,
+# {case: the robot file's law}, diagnose the clean case's recordings with another law (the
+# default corotational one sags 0.6 mm more under gravity than the Neo-Hookean body:
+# docs/diagnosis.md, tenth run); a blend concealed in the truth instead would make the truth
+# the clean case's.
 TRUTH_LAW = "neo-hookean"
+COARSE_LAW = '[material]\nlaw = "corotational"'  # what the copies of COARSE replace
 LAW_OF_ROBOT = {"material_linear": "linear", "material_corotational": "corotational"}
 # A 40 g mass hidden on the north arm's elbow (outside the library: a regional load).
 HIDDEN_LOAD = '[{ kind = "weight", point_mm = [0.0, 97.0, 40.0], force_n = 0.4 }]'
@@ -134,9 +130,6 @@ def coarse_variant(name: str, old: str, new: str) -> Path:
     path.write_text(text.replace(old, new).replace(
         mesh.group(0), f'path = "{(COARSE.parent / mesh.group(1)).resolve()}"'))
     return path
-
-
-COARSE_LAW = '[material]\nlaw = "corotational"'
 
 
 def self_robot() -> Path:

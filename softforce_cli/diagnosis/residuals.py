@@ -27,21 +27,6 @@ from softforce_cli.model.mesh import vertex_normals
 MAX_ASSOCIATION_MM = 15.0
 
 
-@dataclass(frozen=True, eq=False)
-class NodeResiduals:
-    """A frame's residual field on the predicted surface.
-
-    nodes     : (s,) surface node indices (mesh numbering) the field is on.
-    mean_mm   : (s,) mean signed distance of the points associated with each node (0
-                where none).
-    count     : (s,) number of points associated with each node.
-    """
-
-    nodes: np.ndarray
-    mean_mm: np.ndarray
-    count: np.ndarray
-
-
 def surface_normals(positions_mm: np.ndarray, surface_faces: np.ndarray) -> np.ndarray:
     """(n, 3) outward unit normals at every node of a configuration (zeros off the surface)."""
     return vertex_normals(positions_mm, surface_faces)
@@ -90,21 +75,6 @@ def point_residuals(points_mm: np.ndarray, positions_mm: np.ndarray,
     return np.where(far, np.nan, signed), np.where(far, -1, node)
 
 
-def node_residuals(points_mm: np.ndarray, positions_mm: np.ndarray, surface_nodes: np.ndarray,
-                   surface_faces: np.ndarray, camera_mm: np.ndarray | None = None
-                   ) -> NodeResiduals:
-    """The residual field of points (p, 3) against the surface (nodes (s,), triangles (k, 3)
-    in mesh numbering) of a configuration (n, 3), seen from camera_mm (point_residuals)."""
-    residual, node = point_residuals(points_mm, positions_mm, surface_faces, camera_mm)
-    kept = node >= 0
-    slot = np.full(len(positions_mm), -1, dtype=np.int64)
-    slot[surface_nodes] = np.arange(len(surface_nodes))
-    count = np.bincount(slot[node[kept]], minlength=len(surface_nodes))
-    total = np.bincount(slot[node[kept]], weights=residual[kept], minlength=len(surface_nodes))
-    mean = np.divide(total, count, out=np.zeros(len(surface_nodes)), where=count > 0)
-    return NodeResiduals(surface_nodes, mean, count)
-
-
 @dataclass(frozen=True, eq=False)
 class Field:
     """Residual entries of a set of frames: one per (frame, surface node) with points.
@@ -134,18 +104,29 @@ def measure(points_mm: list[np.ndarray], positions_mm: np.ndarray, of_frame: np.
             camera_mm: np.ndarray | None = None) -> Field:
     """The residual entries of frames' points (t lists of (p, 3)) against the predicted mesh
     nodes of their states (S, n, 3), seen from camera_mm (3,); of_frame (t,) the state of
-    each frame."""
-    frames, nodes, means, weights = [], [], [], []
-    for i, points in enumerate(points_mm):
-        field = node_residuals(points, positions_mm[of_frame[i]], surface_nodes, surface_faces,
-                               camera_mm)
-        seen = field.count > 0
-        frames.append(np.full(int(seen.sum()), i))
-        nodes.append(surface_nodes[seen])
-        means.append(field.mean_mm[seen])
-        weights.append(field.count[seen].astype(float))
-    return Field(*(np.concatenate(a) if a else np.zeros(0) for a in (frames, nodes, means,
-                                                                       weights)))
+    each frame. Entries are ordered by frame, then as surface_nodes (s,)."""
+    of_frame = np.asarray(of_frame)
+    slot = np.full(positions_mm.shape[1], -1, dtype=np.int64)
+    slot[surface_nodes] = np.arange(len(surface_nodes))
+    keys, residuals = [], []
+    for state in np.unique(of_frame):  # one query of all the frames a state predicts
+        frames = np.flatnonzero(of_frame == state)
+        counts = [len(points_mm[i]) for i in frames]
+        if sum(counts) == 0:
+            continue
+        residual, node = point_residuals(np.concatenate([points_mm[i] for i in frames]),
+                                         positions_mm[state], surface_faces, camera_mm)
+        kept = node >= 0
+        frame = np.repeat(frames, counts)[kept]
+        keys.append(frame * len(surface_nodes) + slot[node[kept]])
+        residuals.append(residual[kept])
+    if not keys:
+        return Field(*(np.zeros(0) for _ in range(4)))
+    entry, of_entry, weight = np.unique(np.concatenate(keys), return_inverse=True,
+                                        return_counts=True)
+    total = np.bincount(of_entry, weights=np.concatenate(residuals), minlength=len(entry))
+    return Field(entry // len(surface_nodes), surface_nodes[entry % len(surface_nodes)],
+                 total / weight, weight.astype(float))
 
 
 def weighted_rms(values: np.ndarray, weights: np.ndarray) -> float:
