@@ -409,6 +409,16 @@ def test_fallback_refits_other_targets_that_generalise_and_agree_with_the_table(
     chosen = fallback_candidates(screened, [north], table)
     assert [s.candidate.label for s in chosen] == ["regional_stiffness[south]",
                                                    "stiffness_scale"]
+    # the modes in turn: a relative candidate behind absolute ones with larger shares (of
+    # another excess) is refitted (regional_south_0.5, seed 2: the south arm at 0.20 of the
+    # relative excess, behind gravity, a softer body and a base at 0.35-0.43 of the absolute)
+    heavier = _screened("gravity", None, spread, relative=False)
+    absolute = [heavier, _screened("stiffness_scale", None, 0.95 * spread, relative=False),
+                _screened("compliant_base", None, 0.9 * spread, relative=False),
+                _screened("regional_stiffness", "south", 0.3 * spread)]
+    chosen = fallback_candidates(absolute, [heavier], table)
+    assert [(s.candidate.label, s.relative) for s in chosen] == [
+        ("regional_stiffness[south]", True), ("stiffness_scale", False)]
 
 
 def test_rivals_of_a_named_effect_are_those_its_screening_cannot_beat():
@@ -553,6 +563,10 @@ def test_a_refit_past_what_the_model_can_solve_pulls_back_and_says_where():
         def field(self, prediction):
             return _field((1.0 / self.values[0] - 1.0 / 0.6) * pattern)
 
+        @property
+        def nominal_field(self):
+            return _field((1.0 - 1.0 / 0.6) * pattern)
+
     fitted = refit(Snapping(), softer, np.array([0.6]), False, lambda f, j, v: np.zeros(1))
     assert 0.75 <= fitted.values[0] <= 0.8
     assert fitted.unreached and all(isinstance(e, NoEquilibriumError)
@@ -560,6 +574,44 @@ def test_a_refit_past_what_the_model_can_solve_pulls_back_and_says_where():
     line = unreached_line(SimpleNamespace(candidate=softer, refit=fitted, values=fitted.values))
     assert "no equilibrium at inputs (9, 0) with stiffness_scale at (0.6)" in line
     assert f"stopped at scale = {fitted.values[0]:.4g}" in line
+
+
+def test_a_refit_pulled_back_learns_from_the_exact_shift_to_where_it_could_solve():
+    """A body three times as mobile as its tangent near a snap-through (no equilibrium below
+    0.77 of its stiffness), 0.8 as stiff: the screening overshoots to 0.65. Pulled back
+    halfway (0.825), the exact shift from the nominal model there tells the refit how far
+    the body really moves, and its first step lands on the truth; uncorrected, that step
+    went past the snap-through again (the study's creep: from a relaxation of 0.26 to 0.79,
+    and the refit ended there)."""
+    from types import SimpleNamespace
+
+    from softforce_cli.diagnosis.refit import NoEquilibriumError, Prediction, refit
+
+    frames, nodes, truth, mobility = 8, 30, 0.8, 3.0
+    pattern = np.sin(np.linspace(0, 3, nodes))[None] * np.linspace(1.0, 2.0, frames)[:, None]
+    inputs = _linear_inputs(frames, nodes, pattern)
+    softer = Candidate((Hypothesis("stiffness_scale", None, ("scale",), np.ones(1),
+                                   np.array([0.5]), np.array([2.0])),))
+
+    def moved(scale: float) -> float:
+        return mobility * (1.0 - 1.0 / scale)
+
+    class Snapping:
+        basis = SimpleNamespace(inputs_for=lambda field: inputs)
+        nominal_field = _field((moved(truth) - moved(1.0)) * pattern)
+
+        def predict(self, candidate, values):
+            if values[0] < 0.77:
+                raise NoEquilibriumError(candidate, values, np.array([6.0, 0.0]))
+            self.values = values
+            return Prediction(np.zeros((1, nodes, 3)), np.zeros(frames, dtype=int), 1)
+
+        def field(self, prediction):
+            return _field((moved(truth) - moved(self.values[0])) * pattern)
+
+    fitted = refit(Snapping(), softer, np.array([0.65]), False, lambda f, j, v: np.zeros(1))
+    assert fitted.values[0] == pytest.approx(truth, rel=1e-3)
+    assert len(fitted.unreached) == 1  # the screened start only
 
 
 def _saturating(p: float) -> float:

@@ -53,6 +53,16 @@ def test_the_concealed_slack_is_named_located_fitted_and_halves_the_residual(sla
     assert slack["ci95"][0] < slack["value"] < slack["ci95"][1]
     assert slack["ci95"][0] <= true_slack <= slack["ci95"][1]
     assert first["heldout_rms_after_mm"] <= 0.5 * first["heldout_rms_before_mm"]
+    # the sample robot is corotational, the recorded body Neo-Hookean: the law is the second
+    # effect, judged with the slack on the absolute residuals, where its sag shows
+    second = document["effects"][1]
+    assert second["name"] == "material_nonlinearity" and second["evidence"]["selected"]
+    assert second["label"] == "cable_slack[north] + material_nonlinearity"
+    assert second["evidence"]["mode"] == "absolute"
+    assert 0.4 < second["parameters"]["material_nonlinearity.blend"]["value"] < 1.0
+    assert second["parameters"]["cable_slack[north].slack_mm"]["value"] == pytest.approx(
+        true_slack, rel=0.1)
+    assert second["heldout_rms_after_mm"] <= 0.5 * second["heldout_rms_before_mm"]
     assert document["location"]["cables"] == ["north"]
     assert document["location"]["regions"][0] == "north"
     # the recording publishes markers: the north elbow is the furthest from the model, and
@@ -105,13 +115,15 @@ def test_diagnosis_json_follows_the_contract(slack_run):
     assert evidence["rms_given_element_mm"] > 2 * evidence["rms_nominal_mm"]
 
 
-def test_the_fitted_robot_loads_and_carries_the_slack(slack_run, tmp_path):
+def test_the_fitted_robot_loads_and_carries_the_slack_and_the_law(slack_run, tmp_path):
     _, out, _ = slack_run
     fitted = out / "robot.fitted.toml"
     robot = load_robot(fitted)
-    (effect,) = robot.effects
+    # each selected effect once, with the values of their joint fit
+    effect, law = robot.effects
     assert (effect.name, effect.target) == ("cable_slack", "north")
     assert effect["slack_mm"] == pytest.approx(3.0, rel=0.1)
+    assert law.name == "material_nonlinearity" and 0.4 < law["blend"] < 1.0
     # a 2 mm command stays inside the slack: the body does not move
     assert robot.cable_inputs([2.0, 0.0, 0.0, 0.0]).values[0] == 0.0
     solved = softforce("model", "solve", fitted, "--actuation", "6,0,0,0", "-o",

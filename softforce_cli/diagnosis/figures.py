@@ -38,14 +38,14 @@ def save_residual_map(diagnosis: Diagnosis, path: Path, force: bool) -> None:
 
     mesh = diagnosis.robot.mesh
     nodes = mesh.nodes_mm
-    relative = not diagnosis.selected or diagnosis.selected[0].screened.relative
+    relative = diagnosis.fitted is None or diagnosis.fitted.screened.relative
     before, seen = _node_values(diagnosis.nominal, mesh.node_count, relative)
     after, seen_after = _node_values(diagnosis.final_field, mesh.node_count, relative)
     limit = max(float(np.abs(before[seen > 0]).max(initial=0.0)), 1e-3)
     colours = dict(cmap="viridis", vmin=0.0, vmax=limit) if relative else dict(
         cmap="coolwarm", vmin=-limit, vmax=limit)
     figure = plt.figure(figsize=(10, 4.5))
-    fitted = ", ".join(f.candidate.label for f in diagnosis.selected) or "no effect"
+    fitted = "no effect" if diagnosis.fitted is None else diagnosis.fitted.candidate.label
     for i, (values, weight, title) in enumerate(((before, seen, "nominal model"),
                                                  (after, seen_after, f"with {fitted}"))):
         axis = figure.add_subplot(1, 2, i + 1, projection="3d")
@@ -101,7 +101,7 @@ def _cloud_signature(diagnosis: Diagnosis, plt):
     loading = np.array([c.loading.sum() for c in contexts])
     hold = np.array([c.hold_s for c in contexts])
     depth = np.array([f.depth_mm.mean() for f in frames])
-    relative = not diagnosis.selected or diagnosis.selected[0].screened.relative
+    relative = diagnosis.fitted is None or diagnosis.fitted.screened.relative
     before = _per_frame_rms(diagnosis.nominal, len(frames), relative)
     after = _per_frame_rms(diagnosis.final_field, len(frames), relative)
     figure, axes = plt.subplots(1, 4, figsize=(14, 3.5), sharey=True)

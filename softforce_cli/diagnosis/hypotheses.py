@@ -9,7 +9,8 @@ sensitivity columns of diagnosis.sensitivities:
   (compliant_base in compliance 1/k, which vanishes at the clamp); stiffness_scale and
   regional_stiffness linear in the compliance change 1 - 1/scale (exact for the part of
   the shape a load holds, where a first order in the modulus halves a 50% softening);
-- viscoelastic_creep: the stiffness column times a (1 - exp(-hold / tau)) of each frame;
+- viscoelastic_creep: each frame's modulus scale 1 - a (1 - exp(-hold / tau)) on the
+  stiffness column, in compliance as stiffness_scale;
 - cable_slack, cable_friction: u_eff from the exact slack and play operators over the
   recording's history (model.effects), and the body at u_eff interpolated from the solved
   state nearest to it: x_k + J_k (u_eff - u_k) (J_k its cable columns). The states are a
@@ -163,7 +164,7 @@ class Hypothesis:
         if self.name == "viscoelastic_creep":
             hold = np.array([c.hold_s for c in inputs.contexts])[inputs.field.frame]
             relaxed = 1.0 - np.exp(-hold / v["time_constant_s"])
-            return -v["relaxation"] * relaxed * inputs.column("stiffness")
+            return _softening(1.0 - v["relaxation"] * relaxed) * inputs.column("stiffness")
         if self.name == "support_contact":
             motion = inputs.support.motion_mm(v["table_z_mm"])
             return np.einsum("ei,ei->e", motion[inputs.state, inputs.field.node],
@@ -177,7 +178,7 @@ class Hypothesis:
         return np.einsum("ei,ei->e", moved - inputs.positions, inputs.normals)
 
 
-def _softening(scale: float) -> float:
+def _softening(scale: float | np.ndarray) -> float | np.ndarray:
     """1 - 1/scale: a modulus scale's first-order weight on its column (d x / d scale at 1),
     taken in compliance: under a load the body's give is proportional to 1/E, so this is
     exact for the loaded part where (scale - 1) halves a 50% softening."""

@@ -15,8 +15,10 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from softforce_cli.diagnosis.basis import Basis
 from softforce_cli.diagnosis.fitting import (
@@ -73,6 +75,16 @@ BACKOFFS = 2
 # before the refit ends: the south arm at half its stiffness, on the very model that made the
 # data, went 0.70, 0.65, 0.59 and then past the truth to 0.47, where the residual doubled.
 OVERSHOOT_HALVINGS = 1
+# A positive parameter whose range spans this factor is stepped (and halved) in its
+# logarithm: creep's time constant (0.05-1000 s) enters as exp(-hold / tau), whose tangent
+# at 1.9 s sent a step for the study's 0.5 s to the bound, 0.05 s, where the body has no
+# equilibrium; in log tau the same step lands at 0.44 s.
+LOG_RANGE = 100.0
+# A Gauss-Newton step over which the first-order model itself departs from its tangent by
+# more than this share of the tangent's shift (RMS) is solved on the first-order model
+# instead (_curved_step): creep's relaxation saturates, a (1 - exp(-hold / tau)) <= a, and
+# the tangent's step for the study's (0.3, 0.5 s) from (0.26, 1.5 s) went to (0.72, 0.05 s).
+CURVED_STEP = 0.25
 
 
 class NoEquilibriumError(SolverError):
@@ -221,6 +233,12 @@ class ExactModel:
             positions = solution.positions_mm
         return solution
 
+    @cached_property
+    def nominal_field(self) -> Field:
+        """The residual field of the nominal prediction (every candidate at its neutral
+        values)."""
+        return self.field(Prediction(self.solutions.predicted_mm, self.states.of_frame, 0))
+
     def field(self, prediction: Prediction) -> Field:
         robot = self.solutions.robot
         return measure(self.points_mm, prediction.positions_mm, prediction.of_frame,
@@ -248,8 +266,8 @@ def _column_changes(candidate: Candidate, values: np.ndarray, hold_s: float,
         elif name == "compliant_base":
             changes["base_compliance"] = v["compliance_mm_per_n"]
         elif name == "viscoelastic_creep":
-            changes["stiffness"] = -v["relaxation"] * (
-                1.0 - np.exp(-hold_s / v["time_constant_s"]))
+            changes["stiffness"] = 1.0 - 1.0 / (1.0 - v["relaxation"] * (
+                1.0 - np.exp(-hold_s / v["time_constant_s"])))
     return changes
 
 
@@ -259,9 +277,11 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
     """Gauss-Newton on the exact model from the screening's values `start` (relative: with
     the static offsets per node, diagnosis.fitting). half_widths(field, jacobian, values)
     gives the 95% half-widths (k,): a step within half of them is taken on the first-order
-    model, without solving the states again (the data cannot tell the two values apart)."""
+    model, without solving the states again (the data cannot tell the two values apart).
+    The steps and the secant are taken in StepCoordinates."""
     values = np.clip(np.asarray(start, dtype=float), candidate.lower, candidate.upper)
     neutral = np.clip(candidate.start, candidate.lower, candidate.upper)
+    coordinates = StepCoordinates.of(candidate)
     unreached: list[SolverError] = []
     for backoff in range(BACKOFFS + 1):
         try:
@@ -271,42 +291,138 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
             if backoff == BACKOFFS:
                 raise
             unreached.append(error)
-            values = 0.5 * (values + neutral)
+            values = coordinates.midway(values, neutral)
+
+    def tangent(field: Field, at: np.ndarray) -> np.ndarray:
+        """(E, k) the first-order model's Jacobian at `at` in the step coordinates."""
+        return shift_jacobian(candidate, exact.basis.inputs_for(field), at) \
+            * coordinates.per_unit(at)
+
+    def stepped(field: Field, at: np.ndarray, jacobian: np.ndarray, corrected: np.ndarray
+                ) -> np.ndarray:
+        """The Gauss-Newton trial from `at`, or _curved_step's where the step is curved."""
+        step = _step(field, corrected, relative)
+        curved = _curved_step(candidate, exact.basis.inputs_for(field), field, at, step,
+                              corrected, jacobian, coordinates, relative)
+        return np.clip(coordinates.moved(at, step if curved is None else curved),
+                       candidate.lower, candidate.upper)
+
     solves = prediction.solves
     field = exact.field(prediction)
-    jacobian = shift_jacobian(candidate, exact.basis.inputs_for(field), values)
+    jacobian = tangent(field, values)
     secant = np.eye(len(values))
+    if unreached:
+        # the first-order model misjudged the effect's size (near a snap-through the body
+        # gives more than its tangent says): how far the exact model moved from the neutral
+        # values to these, against the first-order model, scales the first step
+        nominal = exact.nominal_field
+        at_nominal = exact.basis.inputs_for(nominal)
+        secant = secant * path_gain(nominal, field, candidate.shift(values, at_nominal)
+                                    - candidate.shift(neutral, at_nominal), relative)
     span = candidate.upper - candidate.lower
     for _ in range(REFIT_STEPS):
         if stop_requested():
             break
         corrected = jacobian @ secant
-        trial = np.clip(values + _step(field, corrected, relative), candidate.lower,
-                        candidate.upper)
+        trial = stepped(field, values, jacobian, corrected)
+        reported = corrected / coordinates.per_unit(values)  # d shift / d value
         if np.all(np.abs(trial - values) <= np.maximum(
-                REFIT_TOLERANCE * span, 0.5 * half_widths(field, corrected, values))):
-            return Refit(candidate, trial, field, corrected, prediction, solves, values,
+                REFIT_TOLERANCE * span, 0.5 * half_widths(field, reported, values))):
+            return Refit(candidate, trial, field, reported, prediction, solves, values,
                          tuple(unreached))
         for _ in range(OVERSHOOT_HALVINGS + 1):
-            moved, trial = _reached(exact, candidate, values, trial, unreached)
+            moved, trial = _reached(exact, candidate, values, trial, coordinates, unreached)
             if moved is None:
                 break
             solves += moved.solves
             trial_field = exact.field(moved)
             if _objective(trial_field, relative) < _objective(field, relative):
                 break
-            moved, trial = None, 0.5 * (values + trial)  # past the minimum along the step
+            # past the minimum along the step
+            moved, trial = None, coordinates.midway(values, trial)
         if moved is None:
             break
-        secant = secant_update(secant, field, trial_field, jacobian, trial - values, relative)
+        secant = secant_update(secant, field, trial_field, jacobian,
+                               coordinates.step(values, trial), relative)
         values, prediction, field = trial, moved, trial_field
-        jacobian = shift_jacobian(candidate, exact.basis.inputs_for(field), values)
-    return Refit(candidate, values, field, jacobian @ secant, prediction, solves, values,
-                 tuple(unreached))
+        jacobian = tangent(field, values)
+    return Refit(candidate, values, field, jacobian @ secant / coordinates.per_unit(values),
+                 prediction, solves, values, tuple(unreached))
+
+
+def _curved_step(candidate: Candidate, inputs, field: Field, values: np.ndarray,
+                 step: np.ndarray, corrected: np.ndarray, tangent: np.ndarray,
+                 coordinates: StepCoordinates, relative: bool) -> np.ndarray | None:
+    """(k,) the step (in coordinates) that fits the exact residuals at values best on the
+    first-order model itself, scaled by the gain the secant gives along the Gauss-Newton
+    step: the exact model at values + z is taken to move that many times as far as the
+    first-order one. None when the Gauss-Newton step (its tangent `corrected` (E, k), the
+    first-order tangent `tangent`) is straight enough (CURVED_STEP)."""
+    origin = candidate.shift(values, inputs)
+    weight = field.weight
+    straight = corrected @ step
+    plain = tangent @ step
+    gain = float(np.sum(weight * straight * plain) / max(np.sum(weight * plain**2), 1e-30))
+
+    def shift(z: np.ndarray) -> np.ndarray:
+        moved = np.clip(coordinates.moved(values, z), candidate.lower, candidate.upper)
+        return gain * (candidate.shift(moved, inputs) - origin)
+
+    bend = shift(step) - straight
+    if np.sum(weight * bend**2) <= CURVED_STEP**2 * np.sum(weight * straight**2):
+        return None
+    root = np.sqrt(weight)
+    everything = np.ones(len(weight), dtype=bool)
+
+    def residual(z: np.ndarray) -> np.ndarray:
+        left = field.mean_mm - shift(z)
+        if relative:
+            left = left - node_offsets(left, field, everything)
+        return root * left
+
+    lower = coordinates.step(values, candidate.lower)
+    upper = coordinates.step(values, candidate.upper)
+    # a bound the values sit on is met by a zero step: keep the box open for the solver
+    lower, upper = np.minimum(lower, -1e-9), np.maximum(upper, 1e-9)
+    start = np.clip(np.zeros(len(values)), lower, upper)
+    return least_squares(residual, start, bounds=(lower, upper), x_scale="jac",
+                         diff_step=1e-4, max_nfev=60).x
+
+
+@dataclass(frozen=True)
+class StepCoordinates:
+    """The coordinates the refit steps in: each parameter's value, or its logarithm for a
+    positive one whose range spans LOG_RANGE (`logarithmic` (k,))."""
+
+    logarithmic: np.ndarray
+
+    @classmethod
+    def of(cls, candidate: Candidate) -> StepCoordinates:
+        return cls((candidate.lower > 0) & (candidate.upper >= LOG_RANGE * candidate.lower))
+
+    def coordinates(self, values: np.ndarray) -> np.ndarray:
+        return np.where(self.logarithmic, np.log(np.where(self.logarithmic, values, 1.0)),
+                        values)
+
+    def per_unit(self, values: np.ndarray) -> np.ndarray:
+        """(k,) d value / d coordinate at values."""
+        return np.where(self.logarithmic, values, 1.0)
+
+    def step(self, values: np.ndarray, to: np.ndarray) -> np.ndarray:
+        return self.coordinates(to) - self.coordinates(values)
+
+    def moved(self, values: np.ndarray, step: np.ndarray) -> np.ndarray:
+        """The values `step` (in coordinates) away from `values`."""
+        return np.where(self.logarithmic, values * np.exp(np.where(self.logarithmic, step, 0.0)),
+                        values + step)
+
+    def midway(self, values: np.ndarray, towards: np.ndarray) -> np.ndarray:
+        return self.moved(values, 0.5 * self.step(values, towards))
 
 
 def _reached(exact: ExactModel, candidate: Candidate, values: np.ndarray, trial: np.ndarray,
-             unreached: list[SolverError]) -> tuple[Prediction | None, np.ndarray]:
+             coordinates: StepCoordinates, unreached: list[SolverError]
+             ) -> tuple[Prediction | None, np.ndarray]:
     """(the prediction at trial, trial), the step from values halved while no solve reaches
     it (BACKOFFS times at most; each failure appended to unreached): (None, trial) when
     none does."""
@@ -315,7 +431,7 @@ def _reached(exact: ExactModel, candidate: Candidate, values: np.ndarray, trial:
             return exact.predict(candidate, trial), trial
         except SolverError as error:  # the step left what Newton can follow: halve it
             unreached.append(error)
-            trial = 0.5 * (values + trial)
+            trial = coordinates.midway(values, trial)
     return None, trial
 
 
@@ -331,16 +447,9 @@ def secant_update(secant: np.ndarray, before: Field, after: Field, jacobian: np.
     than its tangent says, and the chord stopped at 1.38 after three steps on the very
     model that made the data; with the secant, 1.96 [1.75, 2.16]. The same ratio makes a
     95% interval from J too narrow (there [1.31, 1.44]): the refit reports J S."""
-    nodes = int(max(before.node.max(), after.node.max())) + 1
-    shared, at_before, at_after = np.intersect1d(
-        before.frame.astype(np.int64) * nodes + before.node,
-        after.frame.astype(np.int64) * nodes + after.node, assume_unique=True,
-        return_indices=True)
-    if len(shared) <= len(step) or not np.any(step):
+    common, at_before = _exact_shift(before, after)
+    if len(at_before) <= len(step) or not np.any(step):
         return secant
-    common = Field(before.frame[at_before], before.node[at_before],
-                   before.mean_mm[at_before] - after.mean_mm[at_after],
-                   before.weight[at_before])
     seen = _step(common, jacobian[at_before], relative)  # J seen ~ the shift
     updated = secant + np.outer(seen - secant @ step, step) / (step @ step)
     gains = np.linalg.svd(updated, compute_uv=False)
@@ -348,6 +457,31 @@ def secant_update(secant: np.ndarray, before: Field, after: Field, jacobian: np.
     if step @ (updated @ step) <= 0.0 or gains.min() < MIN_SECANT or gains.max() > MAX_SECANT:
         return secant
     return updated
+
+
+def path_gain(before: Field, after: Field, first_order: np.ndarray, relative: bool
+              ) -> float:
+    """How many times the first-order shift (E,) at `before`'s entries the exact model moved
+    between the two evaluations (least squares over their common entries, less the static
+    offsets when relative), within [MIN_SECANT, MAX_SECANT]; 1 when nothing is shared."""
+    common, at_before = _exact_shift(before, after)
+    if len(at_before) < 2 or not np.any(first_order[at_before]):
+        return 1.0
+    gain = _step(common, first_order[at_before, None], relative)[0]
+    return float(np.clip(gain, MIN_SECANT, MAX_SECANT))
+
+
+def _exact_shift(before: Field, after: Field) -> tuple[Field, np.ndarray]:
+    """The exact model's shift between two evaluations at their common (frame, node)
+    entries (before - after, with before's weights), and those entries' indices in before."""
+    nodes = int(max(before.node.max(), after.node.max())) + 1
+    _, at_before, at_after = np.intersect1d(
+        before.frame.astype(np.int64) * nodes + before.node,
+        after.frame.astype(np.int64) * nodes + after.node, assume_unique=True,
+        return_indices=True)
+    return Field(before.frame[at_before], before.node[at_before],
+                 before.mean_mm[at_before] - after.mean_mm[at_after],
+                 before.weight[at_before]), at_before
 
 
 def _step(field: Field, jacobian: np.ndarray, relative: bool) -> np.ndarray:

@@ -65,7 +65,8 @@ def _parameters(effect: Effect, free: tuple[str, ...], values: np.ndarray,
 
 
 def effect_entry(item: Final | Screened, floor_mm: float, selected: bool) -> dict[str, Any]:
-    """One ranked effect (its first hypothesis; the second of a pair is its own entry)."""
+    """One ranked effect: the last of its hypotheses, the one it adds to the effects before
+    it (a second effect is refitted with the first: its entry holds both's parameters)."""
     screened = item.screened if isinstance(item, Final) else item
     candidate = screened.candidate
     values = item.values
@@ -79,10 +80,10 @@ def effect_entry(item: Final | Screened, floor_mm: float, selected: bool) -> dic
         prefix = "" if len(effects) == 1 else f"{hypothesis.label}."
         parameters.update({prefix + k: v for k, v in _parameters(
             effect, hypothesis.free, part, part_ci).items()})
-    first = candidate.hypotheses[0]
+    added = candidate.hypotheses[-1]
     return {
-        "name": first.name,
-        "target": first.target,
+        "name": added.name,
+        "target": added.target,
         "label": candidate.label,
         "parameters": parameters,
         "heldout_rms_before_mm": _finite(held.rms_before_mm),
@@ -208,7 +209,8 @@ def fitted_robot_toml(robot_file: Path, diagnosis: Diagnosis, output_dir: Path) 
 
     # [mesh] path and reduced are relative to the robot file: rebase them on the output
     text = re.sub(r'(?m)^(\s*(?:path|reduced)\s*=\s*)"([^"]+)"', relocate, text)
-    effects = [e for f in diagnosis.selected for e in f.candidate.effects(f.values)]
+    fitted = diagnosis.fitted
+    effects = () if fitted is None else fitted.candidate.effects(fitted.values)
     if not effects:
         return text
     # the file's own [[effect]] tables were left out of the diagnosis: the fitted ones replace

@@ -152,13 +152,15 @@ def clear_improvement(result: HeldOut, floor_mm: float, baseline: HeldOut | None
                 and explained_mm(result, baseline) >= floor_mm)
 
 
-def worth_refitting(result: HeldOut, floor_mm: float, size: bool = True) -> bool:
-    """Rules 1 and 3 (size=False: rule 1 only), and at least REFIT_SHARE of the excess: a
-    screened candidate the exact refit then judges (a first-order model under-explains a
-    large effect: a 50% softer arm of 3.7 mm RMS screens at a share of 0.35)."""
-    return bool(result.gain_z() > Z_ACCEPT
-                and (not size or explained_mm(result) >= floor_mm)
-                and excess_share(result, floor_mm) >= REFIT_SHARE)
+def worth_refitting(result: HeldOut, floor_mm: float, size: bool = True,
+                    baseline: HeldOut | None = None) -> bool:
+    """Rules 1 and 3 (size=False: rule 1 only), and at least REFIT_SHARE of the excess (over
+    `baseline`'s after when given): a screened candidate the exact refit then judges (a
+    first-order model under-explains a large effect: a 50% softer arm of 3.7 mm RMS screens
+    at a share of 0.35)."""
+    return bool(result.gain_z(baseline) > Z_ACCEPT
+                and (not size or explained_mm(result, baseline) >= floor_mm)
+                and excess_share(result, floor_mm, baseline) >= REFIT_SHARE)
 
 
 def indistinct(a: HeldOut, b: HeldOut) -> bool:
