@@ -37,8 +37,9 @@ from softforce_cli.diagnosis.sensitivities import ColumnSet, column_set, state_c
 from softforce_cli.diagnosis.solves import SETTINGS, SolveCache, StateSolutions, solve_states
 from softforce_cli.diagnosis.states import States, group_states, trajectory_segments
 from softforce_cli.diagnosis.support import contact_candidates, one_sided_contact, support_basis
+from softforce_cli.errors import SolverError
 from softforce_cli.fem.compliance import linearize
-from softforce_cli.fem.statics import solve_equilibrium
+from softforce_cli.fem.statics import SolverSettings, solve_by_continuation, solve_equilibrium
 from softforce_cli.model.effect_physics import fe_model_with_effects
 from softforce_cli.model.effects import FrameContext, frame_contexts, make_effect
 from softforce_cli.model.robot import load_robot
@@ -343,6 +344,41 @@ def test_diagnosis_solves_do_not_stop_at_a_start_whose_imbalance_is_spread_thin(
     assert np.abs(exact.positions_mm - nominal.positions_mm).max() > 1.5
     np.testing.assert_allclose(solved.positions_mm, exact.positions_mm, atol=1e-3)
 
+
+
+def test_continuation_reaches_what_one_newton_run_cannot(tmp_path):
+    """The beam's cables at 6 and 4 mm (its tip 19 mm from rest) in five Newton iterations
+    at most: not from rest in one run, but in equal steps of the inputs, to the tight
+    direct solve's equilibrium."""
+    robot = load_robot(write_beam(tmp_path))
+    model = robot.nominal_fe_model
+    target = np.array([6.0, 4.0])
+    exact = solve_equilibrium(model, robot.cable_inputs(target))
+    short = SolverSettings(max_iterations=5)
+    with pytest.raises(SolverError):
+        solve_equilibrium(model, robot.cable_inputs(target), settings=short)
+    controls = tuple(spec.control for spec in robot.cable_specs)
+    continued = solve_by_continuation(model, controls, target, [], short)
+    np.testing.assert_allclose(continued.positions_mm, exact.positions_mm, atol=1e-6)
+
+
+def test_a_state_newton_cannot_reach_from_its_start_is_continued_from_a_solved_one(tmp_path):
+    """A warm start Newton's method cannot use (here every element inverted; in the study,
+    a first-order start extrapolated across the actuation box, from 9, 0, 0, 0 to 0, 6, 0,
+    6 mm, which left a fresh diagnosis with no answer) falls back to continuation from the
+    nearest solved state: the equilibrium a direct solve finds."""
+    robot = load_robot(write_beam(tmp_path))
+    model = robot.nominal_fe_model
+    inputs = robot.cable_inputs(np.array([6.0, 4.0]))
+    exact = solve_equilibrium(model, inputs)
+    inverted = model.rest_nodes_mm * np.array([-1.0, 1.0, 1.0])
+    with np.errstate(all="ignore"):
+        with pytest.raises(SolverError):
+            solve_equilibrium(model, inputs, start_mm=inverted, settings=SETTINGS)
+        positions, tensions = SolveCache(None).solve(
+            model, inputs, inverted, [(np.zeros(2), model.rest_nodes_mm)])
+    np.testing.assert_allclose(positions, exact.positions_mm, atol=1e-3)
+    np.testing.assert_allclose(tensions, exact.cable_tensions_n, rtol=1e-3)
 
 
 def test_law_blend_column_is_the_exact_change_to_the_other_law(tmp_path):

@@ -31,7 +31,11 @@ from softforce_cli.errors import SolverError
 from softforce_cli.fem.cables import CableInputs
 from softforce_cli.fem.compliance import linearize
 from softforce_cli.fem.model import FEModel
-from softforce_cli.fem.statics import Equilibrium, SolverSettings, solve_equilibrium
+from softforce_cli.fem.statics import (
+    SolverSettings,
+    solve_by_continuation,
+    solve_equilibrium,
+)
 from softforce_cli.io.atomic import atomic_write_bytes
 from softforce_cli.model.effect_physics import fe_model_with_effects
 from softforce_cli.model.effects import make_effect
@@ -97,15 +101,20 @@ class SolveCache:
         np.savez(buffer, **arrays)
         atomic_write_bytes(self.folder / f"{key}.npz", buffer.getvalue(), force=True)
 
-    def solve(self, model: FEModel, inputs: CableInputs,
-              start_mm: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """(positions (N, 3) mm, cable tensions (a,) N) of the nominal `model` at `inputs`."""
+    def solve(self, model: FEModel, inputs: CableInputs, start_mm: np.ndarray | None,
+              solved: list[tuple[np.ndarray, np.ndarray]] = ()) -> tuple[np.ndarray, np.ndarray]:
+        """(positions (N, 3) mm, cable tensions (a,) N) of the nominal `model` at `inputs`,
+        by Newton's method from `start_mm`, else by continuation from the nearest of the
+        `solved` (inputs, positions) pairs (a far jump of the inputs)."""
         key = self.key(model, inputs)
         stored = self.load(key)
         if stored is not None and {"positions_mm", "tensions_n"} <= set(stored):
             return stored["positions_mm"], stored["tensions_n"]
-        solution: Equilibrium = solve_equilibrium(model, inputs, start_mm=start_mm,
-                                                  settings=SETTINGS)
+        try:
+            solution = solve_equilibrium(model, inputs, start_mm=start_mm, settings=SETTINGS)
+        except SolverError:
+            solution = solve_by_continuation(model, inputs.control, inputs.values,
+                                             list(solved), SETTINGS)
         self.store(key, positions_mm=solution.positions_mm, tensions_n=solution.cable_tensions_n)
         return solution.positions_mm, solution.cable_tensions_n
 
@@ -181,7 +190,6 @@ def solve_states(robot: Robot, actuation: np.ndarray, cache: SolveCache, columns
     sensitivity = np.empty((len(order), len(columns.names), model.node_count, 3))
     cables = [columns.index(f"cable.{spec.name}") for spec in robot.cable_specs]
     given_mm = None if given is None else np.empty((len(order), n, 3))
-    previous = previous_given = None
     factor_box: list = [None]  # the factorisation whose symbolic analysis states reuse
     solved: dict[bytes, int] = {}  # states of equal inputs (loading, hold) share one solve
     for done, s in enumerate(order):
@@ -194,29 +202,35 @@ def solve_states(robot: Robot, actuation: np.ndarray, cache: SolveCache, columns
             if given is not None:
                 given_mm[s] = given_mm[twin]
         else:
-            _solve_state(s, previous, accurate, model, actuation, cache, columns, cables,
-                         positions, tensions, sensitivity, factor_box)
-            previous = s
+            # the chain's last steps can jump across the box: start from the nearest done
+            done_states = list(solved.values())[:-1]
+            nearest = min(done_states, default=None, key=lambda d: float(
+                np.abs(actuation[d] - actuation[s]).sum()))
+            _solve_state(s, nearest, done_states, accurate, model, actuation, cache, columns,
+                         cables, positions, tensions, sensitivity, factor_box)
             if given is not None:
-                given_mm[s], _ = cache.solve(given, robot.cable_inputs(actuation[s]),
-                                             previous_given)
-                previous_given = given_mm[s]
+                given_mm[s], _ = cache.solve(
+                    given, robot.cable_inputs(actuation[s]),
+                    None if nearest is None else given_mm[nearest],
+                    [(actuation[d], given_mm[d]) for d in done_states])
         if progress is not None:
             progress(done + 1, len(order))
     return StateSolutions(accurate, robot.element_name, np.asarray(actuation, dtype=float),
                           positions, tensions, sensitivity, given_mm, columns)
 
 
-def _solve_state(s, previous, accurate, model, actuation, cache, columns, cables, positions,
-                 tensions, sensitivity, factor_box) -> None:
+def _solve_state(s, previous, done_states, accurate, model, actuation, cache, columns, cables,
+                 positions, tensions, sensitivity, factor_box) -> None:
     """Equilibrium and sensitivity columns of state s (from the disk cache when there),
-    warm-started from state `previous` moved to first order."""
+    warm-started from state `previous` moved to first order, else continued from the nearest
+    of the `done_states`."""
     inputs = accurate.cable_inputs(actuation[s])
     start = None
     if previous is not None:
         start = positions[previous] + np.einsum(
             "a,ani->ni", actuation[s] - actuation[previous], sensitivity[previous, cables])
-    positions[s], tensions[s] = cache.solve(model, inputs, start)
+    positions[s], tensions[s] = cache.solve(
+        model, inputs, start, [(actuation[d], positions[d]) for d in done_states])
     key = f"{cache.key(model, inputs)}-columns{COLUMNS_VERSION}-" + hashlib.sha256(
         " ".join(columns.names).encode()).hexdigest()[:12]
     stored = cache.load(key)

@@ -244,3 +244,38 @@ def _line_search(state, current, step, tensions, applied, inputs, controlled, sc
             return trial, evaluation, alpha == 1.0
         alpha *= 0.5
     return trial, evaluation, False
+
+
+# Equal steps of the cable inputs tried in turn by solve_by_continuation: a far corner of
+# the actuation box folds the body further than one Newton run from a distant state reaches.
+CONTINUATION_STEPS = (1, 2, 4, 8)
+
+
+def solve_by_continuation(model: FEModel, controls: tuple[str, ...], target: np.ndarray,
+                          solved: list[tuple[np.ndarray, np.ndarray]],
+                          settings: SolverSettings = SolverSettings()) -> Equilibrium:
+    """The equilibrium at cable inputs `target` (a,) mm or N, from the nearest of the
+    `solved` (inputs (a,), positions (n, 3) mm) pairs (rest when there are none), in 1, 2, 4
+    or 8 equal steps of the inputs until Newton's method reaches every step.
+
+    Raises the last SolverError when even 8 steps fail.
+    """
+    target = np.asarray(target, dtype=float)
+    if solved:
+        origin, positions = min(solved, key=lambda pair: float(np.linalg.norm(pair[0] - target)))
+    else:
+        origin, positions = np.zeros_like(target), model.rest_nodes_mm
+    last_error: SolverError | None = None
+    for steps in CONTINUATION_STEPS:
+        try:
+            start = positions
+            for k in range(1, steps + 1):
+                values = origin + k / steps * (target - origin)
+                equilibrium = solve_equilibrium(model, CableInputs(controls, values),
+                                                start_mm=start, settings=settings)
+                start = equilibrium.positions_mm
+            return equilibrium
+        except SolverError as error:
+            last_error = error
+    assert last_error is not None
+    raise last_error

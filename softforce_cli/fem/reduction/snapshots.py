@@ -35,6 +35,7 @@ from softforce_cli.fem.statics import (
     Equilibrium,
     PointLoads,
     SolverSettings,
+    solve_by_continuation,
     solve_equilibrium,
 )
 from softforce_cli.io.atomic import atomic_path
@@ -223,26 +224,14 @@ def _contact_state(model: FEModel, inputs: CableInputs, unloaded: Equilibrium,
 
 def _continued(model: FEModel, controls: tuple[str, ...], target: np.ndarray,
                solved: list[tuple[np.ndarray, np.ndarray]]) -> Equilibrium:
-    """The equilibrium at actuation `target`, from the nearest solved one, in 1, 2, 4 or 8
-    equal steps of actuation when Newton's method fails on the whole way (far corners of the
-    box fold the body further than one Newton run from rest can go)."""
-    if solved:
-        nearest = min(solved, key=lambda pair: float(np.linalg.norm(pair[0] - target)))
-    else:
-        nearest = (np.zeros_like(target), model.rest_nodes_mm)
-    for steps in (1, 2, 4, 8):
-        try:
-            positions = nearest[1]
-            for k in range(1, steps + 1):
-                values = nearest[0] + k / steps * (target - nearest[0])
-                equilibrium = solve_equilibrium(model, CableInputs(controls, values),
-                                                start_mm=positions, settings=ATTEMPT)
-                positions = equilibrium.positions_mm
-            return equilibrium
-        except SolverError:
-            continue
-    raise SolverError(f"training could not reach actuation {np.round(target, 3).tolist()} even "
-                      "in 8 steps; narrow the cables' [min, max] in the robot file")
+    """The equilibrium at actuation `target`, from the nearest solved one by continuation
+    (far corners of the box fold the body further than one Newton run from rest can go)."""
+    try:
+        return solve_by_continuation(model, controls, target, solved, ATTEMPT)
+    except SolverError:
+        raise SolverError(f"training could not reach actuation {np.round(target, 3).tolist()} "
+                          "even in 8 steps; narrow the cables' [min, max] in the robot file"
+                          ) from None
 
 
 def save_training_set(path: Path, data: TrainingSet, key: str) -> None:
