@@ -61,6 +61,29 @@ def test_a_few_negative_modes_are_anchored_and_solved_exactly():
     check_solves(factor, shifted)
 
 
+def test_a_new_factorization_of_the_pattern_starts_from_the_anchors_that_held(monkeypatch):
+    """The anchors one factorisation searched for are tried first by the next of the same
+    pattern (the next state's Newton solve), which then solves exactly without a search;
+    anchors that no longer hold are searched for again."""
+    first, second = lowest_eigenvalues(2)
+    matrix = grid_laplacian() - sp.eye(N**3) * (first + 1e-4)
+    Factorization(matrix)
+    searches = []
+    search = Factorization._negative_mode_dofs
+    monkeypatch.setattr(Factorization, "_negative_mode_dofs",
+                        lambda self, *args: searches.append(1) or search(self, *args))
+    nearby = grid_laplacian() - sp.eye(N**3) * (first + 0.3 * (second - first))
+    factor = Factorization(nearby)
+    assert factor.method == "anchored" and not searches
+    check_solves(factor, nearby)
+    # four negative modes (the second eigenvalue is threefold): one mode's anchor no longer
+    # stops them
+    deeper = grid_laplacian() - sp.eye(N**3) * (second + 1e-3)
+    factor = Factorization(deeper)
+    assert factor.method == "anchored" and searches
+    check_solves(factor, deeper)
+
+
 def test_strongly_indefinite_matrices_fall_back_to_ldl():
     matrix = grid_laplacian() - 5.5 * sp.eye(N**3)  # half the spectrum negative
     factor = Factorization(matrix)
