@@ -25,16 +25,19 @@ constraints, not springs, in K; docs/locking.md). Three ways, tried in turn:
 A Factorization keeps the way that worked for the refactors of the same pattern (the
 tangents of one Newton solve, or of successive sensing frames, are alike), and searches
 for new anchors when the old ones no longer hold (twice at most after L D L^T was needed).
-A new Factorization of a pattern first tries the anchors that last held for it (the
-Diamond's negative modes are the same apex tipping at every state: the 28 states of a
-diagnosis, each a new Newton solve, had searched 100 times, 36 s of a 142 s run). Any
-anchors that make K' positive definite give K^-1 exactly, so a hint that no longer holds
-costs one factorisation and a search, never accuracy.
+Every Newton solve makes a new Factorization, and what a pattern fixes is shared by the
+Factorizations of that pattern (`_Pattern`, the last few remembered): the triangle's
+structure, the diagonal's positions, and the anchors that last held. The Diamond's negative
+modes are the same apex tipping at every state: the 28 states of a diagnosis had searched
+100 times, 36 s of a 142 s run. Any anchors that make K' positive definite give K^-1
+exactly, so a hint that no longer holds costs one factorisation and a search, never
+accuracy.
 """
 
 from __future__ import annotations
 
 import hashlib
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
@@ -66,9 +69,9 @@ SINGULAR_LEVEL = 1e-12
 SEARCHES = 2
 # Anchors per negative mode, tried in turn (the Diamond needs 1).
 ANCHORS_PER_MODE = (1, 4, 16)
-# Patterns whose last anchors are remembered (the least recently stored forgotten first).
-REMEMBERED_PATTERNS = 8
-_last_anchors: dict[bytes, np.ndarray] = {}
+# Patterns remembered (the least recently used forgotten first): a coarse P2 Diamond's
+# holds about 23 MB.
+REMEMBERED_PATTERNS = 4
 
 
 def _symbolic(lower: spmatrix, mode: int):
@@ -91,7 +94,7 @@ class Factorization:
     """
 
     def __init__(self, matrix: sp.spmatrix) -> None:
-        self._pattern: tuple[np.ndarray, np.ndarray] | None = None
+        self._pattern: _Pattern | None = None
         self.refactor(matrix)
 
     def refactor(self, matrix: sp.spmatrix) -> Factorization:
@@ -100,20 +103,16 @@ class Factorization:
             raise SolverError(NON_FINITE)
         if not csr.has_sorted_indices:
             csr = csr.sorted_indices()
-        same = self._pattern is not None and (
-            np.array_equal(self._pattern[0], csr.indptr)
-            and np.array_equal(self._pattern[1], csr.indices)
-        )
-        if not same:
+        if self._pattern is None or not self._pattern.holds(csr):
             self._analyse(csr)
         # The upper triangle of the symmetric K in CSR order is its lower triangle in CSC
         # order, which is how CHOLMOD (and cvxopt's spmatrix) store a matrix.
-        values = csr.data[self._upper]
+        values = csr.data[self._pattern.upper]
         self.size = csr.shape[0]
         if self.method == "cholesky" and self._numeric(values, self._cholesky):
             self._factor, self._correction = self._cholesky, None
             return self
-        if self._failed_searches < SEARCHES and self._has_diagonal:
+        if self._failed_searches < SEARCHES and self._pattern.has_diagonal:
             if self._anchor_sets is not None and self._anchor(values):
                 return self  # the anchors of the previous tangent still hold
             self._anchor_sets = self._negative_mode_dofs(csr, values)
@@ -129,23 +128,13 @@ class Factorization:
 
     def _analyse(self, csr: sp.csr_matrix) -> None:
         """Symbolic analysis of a new pattern; the L D L^T one waits until it is needed."""
-        size = csr.shape[0]
-        rows = np.repeat(np.arange(size), np.diff(csr.indptr))
-        self._upper = csr.indices >= rows
-        self._lower = spmatrix(csr.data[self._upper], csr.indices[self._upper].astype(int),
-                               rows[self._upper].astype(int), size=csr.shape)
-        # position of each diagonal entry among the lower triangle's values
-        on_diagonal = np.flatnonzero(csr.indices == rows)
-        self._has_diagonal = len(on_diagonal) == size
-        self._diagonal = (np.cumsum(self._upper) - 1)[on_diagonal]
+        self._pattern = _Pattern.of(csr)
+        self._lower = self._pattern.lower * 1.0  # its own values on the shared structure
         self._cholesky = _symbolic(self._lower, SUPERNODAL)
         self._ldl = self._factor = self._correction = None
-        self._key = hashlib.blake2b(np.int64(size).tobytes() + csr.indptr.tobytes()
-                                    + csr.indices.tobytes(), digest_size=16).digest()
-        hint = _last_anchors.get(self._key)
-        self._anchor_sets = None if hint is None else [hint]
+        anchors = self._pattern.anchors
+        self._anchor_sets = None if anchors is None else [anchors]
         self.method, self._failed_searches = "cholesky", 0
-        self._pattern = (csr.indptr.copy(), csr.indices.copy())
 
     def _numeric(self, values: np.ndarray, symbolic) -> bool:
         """Factorise the lower triangle `values` into `symbolic`; False at a bad pivot."""
@@ -168,10 +157,11 @@ class Factorization:
         symmetric pairs would slip past the largest entries alone) and each mode's largest
         entries, `count` of each per mode.
         """
-        scale = float(np.median(np.abs(values[self._diagonal])))
+        diagonal = self._pattern.diagonal
+        scale = float(np.median(np.abs(values[diagonal])))
         for sigma in scale * SHIFTS:
             shifted = values.copy()
-            shifted[self._diagonal] += sigma
+            shifted[diagonal] += sigma
             if self._numeric(shifted, self._cholesky):
                 break
         else:
@@ -195,19 +185,17 @@ class Factorization:
     def _anchor(self, values: np.ndarray) -> bool:
         """Cholesky of K + c E E^T and the Woodbury correction, with the first anchor set
         that makes it positive definite; False if none does."""
-        stiffness = float(np.median(np.abs(values[self._diagonal])))
+        diagonal = self._pattern.diagonal
+        stiffness = float(np.median(np.abs(values[diagonal])))
         for anchors in self._anchor_sets:
             anchored = values.copy()
-            anchored[self._diagonal[anchors]] += stiffness
+            anchored[diagonal[anchors]] += stiffness
             if self._numeric(anchored, self._cholesky):
                 break
         else:
             return False
         self.method, self._anchors, self._anchor_sets = "anchored", anchors, [anchors]
-        _last_anchors.pop(self._key, None)
-        _last_anchors[self._key] = anchors
-        while len(_last_anchors) > REMEMBERED_PATTERNS:
-            del _last_anchors[next(iter(_last_anchors))]
+        self._pattern.anchors = anchors
         columns = np.zeros((self.size, len(anchors)))
         columns[anchors, np.arange(len(anchors))] = 1.0
         responses = self._solve_with(self._cholesky, columns)  # Z = K'^-1 E
@@ -237,3 +225,55 @@ class Factorization:
         if not np.all(np.isfinite(solution)):
             raise SolverError(SINGULAR)
         return solution
+
+
+@dataclass(eq=False)
+class _Pattern:
+    """What a sparsity pattern of K (f, f) fixes, shared by its Factorizations.
+
+    indptr, indices : the CSR structure (sorted indices)
+    upper           : (nnz,) bool, the CSR entries in the upper triangle
+    lower           : those entries as the lower triangle in CSC order (cvxopt; its values
+                      are a template, each Factorization copies it)
+    diagonal        : (f,) position of each diagonal entry among `lower`'s values
+    has_diagonal    : every diagonal entry is stored
+    anchors         : the anchor dofs that last made a tangent of this pattern definite
+    """
+
+    indptr: np.ndarray
+    indices: np.ndarray
+    upper: np.ndarray
+    lower: spmatrix
+    diagonal: np.ndarray
+    has_diagonal: bool
+    anchors: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, csr: sp.csr_matrix) -> _Pattern:
+        """The remembered pattern of `csr`, or a new one (then remembered)."""
+        key = hashlib.blake2b(np.int64(csr.shape[0]).tobytes() + csr.indptr.tobytes()
+                              + csr.indices.tobytes(), digest_size=16).digest()
+        pattern = _remembered.pop(key, None) or cls._analysed(csr)
+        _remembered[key] = pattern
+        while len(_remembered) > REMEMBERED_PATTERNS:
+            del _remembered[next(iter(_remembered))]
+        return pattern
+
+    @classmethod
+    def _analysed(cls, csr: sp.csr_matrix) -> _Pattern:
+        size = csr.shape[0]
+        rows = np.repeat(np.arange(size), np.diff(csr.indptr))
+        upper = csr.indices >= rows
+        lower = spmatrix(csr.data[upper], csr.indices[upper].astype(int),
+                         rows[upper].astype(int), size=csr.shape)
+        on_diagonal = np.flatnonzero(csr.indices == rows)
+        return cls(csr.indptr.copy(), csr.indices.copy(), upper, lower,
+                   (np.cumsum(upper) - 1)[on_diagonal], len(on_diagonal) == size)
+
+    def holds(self, csr: sp.csr_matrix) -> bool:
+        """Whether `csr` (sorted indices) has this pattern."""
+        return (np.array_equal(self.indptr, csr.indptr)
+                and np.array_equal(self.indices, csr.indices))
+
+
+_remembered: dict[bytes, _Pattern] = {}
