@@ -87,13 +87,16 @@ def diagnose(cache: list[str]) -> tuple[float, dict]:
     return elapsed, json.loads((output / "diagnosis.json").read_text())
 
 
+def _effect(entry: dict) -> str:
+    values = ", ".join(f"{k} {v['value']:.2f}" for k, v in entry["parameters"].items())
+    mode = entry["evidence"]["mode"].split()[0]  # "relative" or "absolute"
+    return (f"{entry['label']}: {values}, {mode} held-out "
+            f"{entry['heldout_rms_before_mm']:.2f} -> {entry['heldout_rms_after_mm']:.2f} mm")
+
+
 def _result(document: dict) -> str:
     selected = [e for e in document["effects"] if e["evidence"]["selected"]]
-    return f"{document['verdict']} (" + "; then ".join(
-        f"{e['label']}: " + ", ".join(f"{k} {v['value']:.2f}" for k, v in
-                                      e["parameters"].items())
-        + f", {e['evidence']['mode'].split()[0]} held-out {e['heldout_rms_before_mm']:.2f} "
-        f"-> {e['heldout_rms_after_mm']:.2f} mm" for e in selected) + ")"
+    return f"{document['verdict']} ({'; then '.join(map(_effect, selected))})"
 
 
 def run() -> list[BenchRow]:
