@@ -419,17 +419,24 @@ def test_law_tangent_factors_are_its_tangent(law):
 
 @pytest.mark.parametrize("element", ["p2", "p2-p0"])
 @pytest.mark.parametrize("law", ["corotational", "neo-hookean"])
-def test_factored_reduced_tangent_is_the_plain_sum(beam, element, law):
+@pytest.mark.parametrize("shape", ["squeezed", "half stretched"])
+def test_factored_reduced_tangent_is_the_plain_sum(beam, element, law, shape):
     """ReducedTangent's shift term plus signed syrk updates equal sum_p w_p G_p^T A_p G_p
     term by term (float64 to 1e-10, float32 to 1e-5), in a squeezed state where most
-    corotational A_p are indefinite (both signs of the factored terms)."""
+    corotational A_p are indefinite (both signs of the factored terms), and in one whose far
+    half is stretched 40%, where the corotational rotation terms change sign along the beam
+    (tr(S - I) > 2 mu / lam): factors of one sign everywhere and of varying sign both."""
     robot, reduction, _ = beam
     full = with_element(robot, element).full_fe_model
     full = dataclasses.replace(full, material=dataclasses.replace(full.material, law=law))
     reduction = dataclasses.replace(reduction, element=element)
-    # 25% shorter along the beam (clamped end at x = 0), with a bend
-    x = full.rest_nodes_mm * [0.75, 1.0, 1.0]
-    x[:, 2] += 1e-3 * full.rest_nodes_mm[:, 0] ** 2
+    x = full.rest_nodes_mm.copy()
+    along = full.rest_nodes_mm[:, 0]  # the clamped end at x = 0
+    if shape == "squeezed":  # 25% shorter along the beam, with a bend
+        x[:, 0] *= 0.75
+        x[:, 2] += 1e-3 * along**2
+    else:
+        x[:, 0] += 0.4 * np.maximum(along - 0.5 * along.max(), 0.0)
     for dtype, tolerance in ((np.float64, 1e-10), (np.float32, 1e-5)):
         space = ReducedModel(full, reduction, dtype).coordinates
         F = deformation_gradients(x, space.tets, space.gradients)[:, 0]
@@ -438,7 +445,12 @@ def test_factored_reduced_tangent_is_the_plain_sum(beam, element, law):
         plain = np.einsum("pir,pij,pjs->rs", space.points, weighted, space.points)
         _, tangent = space.forces_and_tangent(x, np.zeros(len(full.cables)))
         assert np.linalg.norm(tangent - plain) <= tolerance * np.linalg.norm(plain)
-    assert (np.linalg.eigvalsh(tangents)[:, 0] < 0).mean() > 0.3
+    if shape == "squeezed":
+        assert (np.linalg.eigvalsh(tangents)[:, 0] < 0).mean() > 0.3
+    elif law == "corotational":
+        negative = full.material.stress_and_tangent_factors(F, "all")[1].coefficients < 0
+        varying = negative.any(axis=0) & ~negative.all(axis=0)
+        assert varying[:3].all() and not negative[:, 3].any()
 
 
 def test_float32_tangent_keeps_newtons_answer_and_rate(beam):

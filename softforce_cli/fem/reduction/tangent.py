@@ -58,20 +58,42 @@ class ReducedTangent:
     def __call__(self, pieces: list[tuple[slice, TangentFactors]]) -> np.ndarray:
         """(r, r) N/mm, symmetric: the reduced tangent for the factors of A over each slice
         of the points (together covering all s of them, in order)."""
-        r = self.size
         shift = np.concatenate([factors.shift for _, factors in pieces])
         total = self.shift_term(shift).copy()
         for where, factors in pieces:
             scale = np.sqrt(self.weights[where, None] * np.abs(factors.coefficients))
             rows = (scale[:, :, None] * factors.rows).astype(self.dtype)
-            H = (rows @ self.low[where]).reshape(-1, r)  # (k s, r)
-            negative = (factors.coefficients < 0.0).ravel()
-            # np.compress copies rows twice as fast as boolean indexing
-            positive, negative = np.compress(~negative, H, axis=0), np.compress(negative, H, axis=0)
-            # numpy computes a.T @ a of one C-ordered array with syrk
-            total += positive.T @ positive
-            total -= negative.T @ negative
+            for sign, H in _signed_rows(rows, self.low[where], factors.coefficients < 0.0):
+                # numpy computes a.T @ a of one C-ordered array with syrk
+                if sign > 0:
+                    total += H.T @ H
+                else:
+                    total -= H.T @ H
         return 0.5 * (total + total.T)
+
+
+def _signed_rows(rows: np.ndarray, operators: np.ndarray, negative: np.ndarray):
+    """(sign, H) pairs: the rows h_pj = rows_pj G_p (k s, r) grouped by the sign of their
+    coefficients, from rows (s, k, 9), operators G (s, 9, r) and the mask negative (s, k).
+
+    A factor keeps its sign at every point in the common case (the corotational law's three
+    rotation terms are negative wherever tr(S - I) < 2 mu / lam, its volume term always
+    positive): those columns are multiplied in two groups, with no copy of H's rows; only
+    columns whose sign varies (an eigen-factored Neo-Hookean tangent) are split row by row.
+    """
+    r = operators.shape[-1]
+    always = negative.all(axis=0)
+    never = ~negative.any(axis=0)
+    for sign, columns in ((1, never), (-1, always)):
+        if columns.any():
+            yield sign, (rows[:, columns] @ operators).reshape(-1, r)
+    mixed = ~(always | never)
+    if mixed.any():
+        H = (rows[:, mixed] @ operators).reshape(-1, r)
+        flags = negative[:, mixed].ravel()
+        # np.compress copies rows twice as fast as boolean indexing
+        yield 1, np.compress(~flags, H, axis=0)
+        yield -1, np.compress(flags, H, axis=0)
 
 
 def plain_tangent(operators: np.ndarray, weights: np.ndarray, tangents: np.ndarray
