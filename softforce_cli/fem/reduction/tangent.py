@@ -78,22 +78,28 @@ def _signed_rows(rows: np.ndarray, operators: np.ndarray, negative: np.ndarray):
 
     A factor keeps its sign at every point in the common case (the corotational law's three
     rotation terms are negative wherever tr(S - I) < 2 mu / lam, its volume term always
-    positive): those columns are multiplied in two groups, with no copy of H's rows; only
-    columns whose sign varies (an eigen-factored Neo-Hookean tangent) are split row by row.
+    positive): the product writes each factor's rows contiguously, factors of one sign next
+    to each other, so those groups are views of it; only factors whose sign varies (an
+    eigen-factored Neo-Hookean tangent) are split row by row.
     """
     r = operators.shape[-1]
-    always = negative.all(axis=0)
-    never = ~negative.any(axis=0)
-    for sign, columns in ((1, never), (-1, always)):
-        if columns.any():
-            yield sign, (rows[:, columns] @ operators).reshape(-1, r)
+    always, never = negative.all(axis=0), ~negative.any(axis=0)
     mixed = ~(always | never)
+    order = np.concatenate([np.flatnonzero(never), np.flatnonzero(always), np.flatnonzero(mixed)])
+    H = np.empty((len(order), len(rows), r), dtype=rows.dtype)  # (k, s, r)
+    # one pass over G for every factor, as fast as the plain (s, k, r) product
+    np.matmul(rows[:, order], operators, out=H.transpose(1, 0, 2))
+    positive_end, negative_end = np.cumsum([never.sum(), always.sum()])
+    if positive_end > 0:
+        yield 1, H[:positive_end].reshape(-1, r)
+    if negative_end > positive_end:
+        yield -1, H[positive_end:negative_end].reshape(-1, r)
     if mixed.any():
-        H = (rows[:, mixed] @ operators).reshape(-1, r)
-        flags = negative[:, mixed].ravel()
+        varying = H[negative_end:].reshape(-1, r)
+        flags = negative[:, mixed].T.ravel()  # in H's (factor, point) order
         # np.compress copies rows twice as fast as boolean indexing
-        yield 1, np.compress(~flags, H, axis=0)
-        yield -1, np.compress(flags, H, axis=0)
+        yield 1, np.compress(~flags, varying, axis=0)
+        yield -1, np.compress(flags, varying, axis=0)
 
 
 def plain_tangent(operators: np.ndarray, weights: np.ndarray, tangents: np.ndarray
