@@ -8,9 +8,17 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 
 from softforce_cli.errors import SolverError
+from softforce_cli.fem import linear_solver
 from softforce_cli.fem.linear_solver import Factorization
 
 N = 10  # a 10 x 10 x 10 grid
+
+
+@pytest.fixture(autouse=True)
+def forget_patterns(monkeypatch):
+    """Each test starts with no remembered pattern: the grid's matrices share one, and the
+    anchors one test leaves would change how the next factorises."""
+    monkeypatch.setattr(linear_solver, "_remembered", {})
 
 
 def grid_laplacian(clamped: bool = True) -> sp.csr_matrix:
@@ -63,19 +71,28 @@ def test_a_few_negative_modes_are_anchored_and_solved_exactly():
 
 def test_a_new_factorization_of_the_pattern_starts_from_the_anchors_that_held(monkeypatch):
     """The anchors one factorisation searched for are tried first by the next of the same
-    pattern (the next state's Newton solve), which then solves exactly without a search;
-    anchors that no longer hold are searched for again."""
+    pattern (the next state's Newton solve), which then solves exactly without a search and
+    without first failing K's own Cholesky; anchors that no longer hold are searched for
+    again."""
     first, second = lowest_eigenvalues(2)
     matrix = grid_laplacian() - sp.eye(N**3) * (first + 1e-4)
     Factorization(matrix)
-    searches = []
-    search = Factorization._negative_mode_dofs
+    searches, numerics = [], []
+    search, numeric = Factorization._negative_mode_dofs, Factorization._numeric
     monkeypatch.setattr(Factorization, "_negative_mode_dofs",
                         lambda self, *args: searches.append(1) or search(self, *args))
-    nearby = grid_laplacian() - sp.eye(N**3) * (first + 0.3 * (second - first))
+    monkeypatch.setattr(Factorization, "_numeric",
+                        lambda self, *args: numerics.append(1) or numeric(self, *args))
+    nearby = grid_laplacian() - sp.eye(N**3) * (first + 3e-4)  # the same mode, deeper
     factor = Factorization(nearby)
-    assert factor.method == "anchored" and not searches
+    # one numeric factorisation: the anchored one, not K's own Cholesky first
+    assert factor.method == "anchored" and not searches and len(numerics) == 1
     check_solves(factor, nearby)
+    # a definite matrix of the pattern is solved exactly through the same anchors
+    definite = grid_laplacian() + 0.1 * sp.eye(N**3)
+    factor = Factorization(definite)
+    assert factor.method == "anchored" and not searches
+    check_solves(factor, definite)
     # four negative modes (the second eigenvalue is threefold): one mode's anchor no longer
     # stops them
     deeper = grid_laplacian() - sp.eye(N**3) * (second + 1e-3)

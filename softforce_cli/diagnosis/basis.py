@@ -23,7 +23,8 @@ from softforce_cli.model.effects import FrameContext
 @dataclass(frozen=True, eq=False)
 class Basis:
     """predicted_mm (S, n, 3), normals (S, n, 3), normal_columns (S, C, n) mm per unit,
-    state_inputs (S, a), cable_columns (S, a, n, 3) mm per unit input; table: the observed
+    state_inputs (S, a), cable_columns (S, n, a, 3) mm per unit input (node-major: an
+    entry gathers its node's a columns in one read); table: the observed
     table (diagnosis.background) or None; support: the plate's screening data
     (diagnosis.support) or None."""
 
@@ -60,5 +61,5 @@ def build_basis(predicted_mm: np.ndarray, columns: np.ndarray, surface_faces: np
     projected = np.einsum("scni,sni->scn", columns, normals)
     cable = [column_set.index(f"cable.{name}") for name in cables]
     return Basis(predicted_mm, normals, projected, column_set, of_frame, contexts, cables,
-                 robot_from_camera, np.asarray(state_inputs, dtype=float), columns[:, cable],
-                 table, support)
+                 robot_from_camera, np.asarray(state_inputs, dtype=float),
+                 np.ascontiguousarray(columns[:, cable].transpose(0, 2, 1, 3)), table, support)

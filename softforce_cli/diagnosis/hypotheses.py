@@ -92,7 +92,7 @@ class Inputs:
     robot_from_camera : the calibration's transform.
     library    : (S, n, 3) every state's predicted mesh nodes.
     library_inputs : (S, a) every state's commanded inputs.
-    cable_columns  : (S, a, n, 3) every state's cable columns (mm per unit input).
+    cable_columns  : (S, n, a, 3) every state's cable columns (mm per unit input), node-major.
     table      : the table under the robot as observed (diagnosis.background), or None.
     support    : the plate's screening data (diagnosis.support), or None.
     """
@@ -193,7 +193,7 @@ def _interpolated_shift(effective: np.ndarray, inputs: Inputs) -> np.ndarray:
     node = inputs.field.node
     delta = effective[inputs.field.frame] - inputs.library_inputs[nearest]  # (E, a)
     moved = inputs.library[nearest, node] + np.einsum(
-        "ea,eai->ei", delta, inputs.cable_columns[nearest, :, node])
+        "ea,eai->ei", delta, inputs.cable_columns[nearest, node])
     return np.einsum("ei,ei->e", moved - inputs.positions, inputs.normals)
 
 

@@ -27,9 +27,10 @@ tangents of one Newton solve, or of successive sensing frames, are alike), and s
 for new anchors when the old ones no longer hold (twice at most after L D L^T was needed).
 Every Newton solve makes a new Factorization, and what a pattern fixes is shared by the
 Factorizations of that pattern (`_Pattern`, the last few remembered): the triangle's
-structure, the diagonal's positions, and the anchors that last held. The Diamond's negative
-modes are the same apex tipping at every state: the 28 states of a diagnosis had searched
-100 times, 36 s of a 142 s run. Any anchors that make K' positive definite give K^-1
+structure, the diagonal's positions, and the anchors that last held, with which a new
+Factorization starts (not with K's own Cholesky, which failed for them). The Diamond's
+negative modes are the same apex tipping at every state: the 28 states of a diagnosis had
+searched 100 times, 36 s of a 142 s run. Any anchors that make K' positive definite give K^-1
 exactly, so a hint that no longer holds costs one factorisation and a search, never
 accuracy.
 """
@@ -134,7 +135,10 @@ class Factorization:
         self._ldl = self._factor = self._correction = None
         anchors = self._pattern.anchors
         self._anchor_sets = None if anchors is None else [anchors]
-        self.method, self._failed_searches = "cholesky", 0
+        # a pattern whose tangents needed anchors starts with them: K's own Cholesky would
+        # fail again, at the cost of a whole numeric factorisation
+        self.method = "cholesky" if anchors is None else "anchored"
+        self._failed_searches = 0
 
     def _numeric(self, values: np.ndarray, symbolic) -> bool:
         """Factorise the lower triangle `values` into `symbolic`; False at a bad pivot."""

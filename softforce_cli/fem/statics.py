@@ -118,10 +118,13 @@ def solve_equilibrium(
             stiffness_scale = float(np.mean(tangent.diagonal()))
         factor = space.factorize(tangent, factor)
         base = applied - current.internal + jacobian[~controlled].T @ tensions[~controlled]
-        step = factor.solve(base)
+        # the step and the held cables' responses K^-1 H_d^T in one pass through the factors
+        pulled = jacobian[controlled]
+        solved = factor.solve(np.column_stack([base, pulled.T]))
+        step = solved[:, 0]
         if controlled.any():
             tensions, step = _cable_tensions(
-                factor, jacobian, controlled, violation, step, tensions
+                pulled, solved[:, 1:], controlled, violation, step, tensions
             )
         state, current, full_step = _line_search(
             state, current, step, tensions, applied, inputs, controlled, stiffness_scale,
@@ -185,14 +188,13 @@ def _held_tensions(current: _Evaluation, applied: np.ndarray, controlled: np.nda
     return tensions
 
 
-def _cable_tensions(factor, jacobian, controlled, violation, free_step, tensions):
+def _cable_tensions(rows, responses, controlled, violation, free_step, tensions):
     """Tensions of displacement-controlled cables for this Newton step, slack where negative.
 
-    Solves W lam = violation - H dx_free on the taut set (an active set on at most a few
-    cables); returns the tensions and the full step dx_free + K^-1 H^T lam.
+    From their rows H_d (d, f) and responses K^-1 H_d^T (f, d), solves
+    W lam = violation - H dx_free on the taut set (an active set on at most a few cables);
+    returns the tensions and the full step dx_free + K^-1 H^T lam.
     """
-    rows = jacobian[controlled]
-    responses = factor.solve(rows.T)  # (f, d): K^-1 H_d^T
     compliance = rows @ responses  # W_aa of eq. 4
     target = violation - rows @ free_step
     taut = np.ones(len(target), dtype=bool)
