@@ -118,7 +118,7 @@ def solve_equilibrium(
             stiffness_scale = float(np.mean(tangent.diagonal()))
         factor = space.factorize(tangent, factor)
         base = applied - current.internal + jacobian[~controlled].T @ tensions[~controlled]
-        # the step and the held cables' responses K^-1 H_d^T in one pass through the factors
+        # the step and the held cables' responses K^-1 H_d^T, solved together
         pulled = jacobian[controlled]
         solved = factor.solve(np.column_stack([base, pulled.T]))
         step = solved[:, 0]

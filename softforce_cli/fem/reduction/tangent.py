@@ -17,6 +17,8 @@ K_r, docs/reduced_model.md), while the forces, which set Newton's answer, stay f
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 
 from softforce_cli.fem.materials import TangentFactors
@@ -72,7 +74,8 @@ class ReducedTangent:
         return 0.5 * (total + total.T)
 
 
-def _signed_rows(rows: np.ndarray, operators: np.ndarray, negative: np.ndarray):
+def _signed_rows(rows: np.ndarray, operators: np.ndarray, negative: np.ndarray
+                 ) -> Iterator[tuple[int, np.ndarray]]:
     """(sign, H) pairs: the rows h_pj = rows_pj G_p (k s, r) grouped by the sign of their
     coefficients, from rows (s, k, 9), operators G (s, 9, r) and the mask negative (s, k).
 
