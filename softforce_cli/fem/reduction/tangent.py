@@ -67,10 +67,7 @@ class ReducedTangent:
             rows = (scale[:, :, None] * factors.rows).astype(self.dtype)
             for sign, H in _signed_rows(rows, self.low[where], factors.coefficients < 0.0):
                 # numpy computes a.T @ a of one C-ordered array with syrk
-                if sign > 0:
-                    total += H.T @ H
-                else:
-                    total -= H.T @ H
+                total += sign * (H.T @ H)
         return 0.5 * (total + total.T)
 
 
