@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from softforce_cli.calibration.rigid import RigidTransform
-from softforce_cli.diagnosis import support
+from softforce_cli.diagnosis import refit, support
 from softforce_cli.diagnosis.background import Table
+from softforce_cli.diagnosis.basis import build_basis
 from softforce_cli.diagnosis.fitting import Candidate, HeldOut, fit_values, held_out
 from softforce_cli.diagnosis.hypotheses import Hypothesis, Inputs
 from softforce_cli.diagnosis.pipeline import (
@@ -775,6 +776,18 @@ def test_a_plate_under_a_hanging_beam_is_screened(tmp_path, height_mm):
     sagging 2.9 mm) over a plate below its rest shape: nothing stands on the plate at rest,
     and the heights searched start from the lowest point the body reaches, not from where
     it stands. The screened contact against the exact plate, within 3%."""
+    robot, actuation, solution, solutions = _hanging_beam(tmp_path)
+    support = support_basis(solutions, SolveCache(None))
+    assert support.lower_mm < height_mm < robot.mesh.nodes_mm[:, 2].min() < support.upper_mm
+    exact = _propped_mm(robot, actuation, solution, height_mm)
+    assert np.sqrt(np.mean(np.sum(exact**2, axis=1))) > 0.4
+    predicted = support.motion_mm(height_mm)[0]
+    assert np.linalg.norm(predicted - exact) < 0.03 * np.linalg.norm(exact)
+
+
+def _hanging_beam(tmp_path):
+    """The P2 beam at rest inputs, sagging under its weight: robot, actuation (2,), its
+    equilibrium and its StateSolutions (one state)."""
     robot = load_robot(write_beam(tmp_path))
     model = robot.nominal_fe_model
     actuation = np.zeros(2)
@@ -785,9 +798,44 @@ def test_a_plate_under_a_hanging_beam_is_screened(tmp_path, height_mm):
                                solution.positions_mm[None], solution.cable_tensions_n[None],
                                state_columns(robot, columns, lin,
                                              solution.cable_tensions_n)[None], None, columns)
+    return robot, actuation, solution, solutions
+
+
+def test_the_refit_starts_a_plate_from_its_screened_contact(tmp_path, monkeypatch):
+    """The exact model with a plate under the hanging beam, 2 mm above its lowest point
+    (diagnosis.refit): Newton starts from the contact solved on the linearisation, and
+    reaches the tight solve's equilibrium in 3 iterations where the nominal equilibrium,
+    the plate 2 mm into the body, takes 11."""
+    robot, actuation, solution, solutions = _hanging_beam(tmp_path)
     support = support_basis(solutions, SolveCache(None))
-    assert support.lower_mm < height_mm < robot.mesh.nodes_mm[:, 2].min() < support.upper_mm
-    exact = _propped_mm(robot, actuation, solution, height_mm)
-    assert np.sqrt(np.mean(np.sum(exact**2, axis=1))) > 0.4
-    predicted = support.motion_mm(height_mm)[0]
-    assert np.linalg.norm(predicted - exact) < 0.03 * np.linalg.norm(exact)
+    height_mm = support.lower_mm + 2.0
+    states = States(actuation[None], np.zeros((1, 2), np.int8), np.zeros(1),
+                    np.zeros(1, np.int64))
+    contexts = (FrameContext(0.0, actuation, np.zeros(2, np.int8), 0.0),)
+    basis = build_basis(solutions.predicted_mm, solutions.mesh_columns,
+                        robot.mesh.surface_faces, solutions.column_set, np.zeros(1, np.int64),
+                        contexts, tuple(spec.name for spec in robot.cable_specs),
+                        RigidTransform(np.eye(3), np.zeros(3)), actuation[None],
+                        support=support)
+    exact = ExactModel(solutions, states, contexts, [np.zeros((0, 3))], basis)
+    plate = Candidate((Hypothesis("support_contact", None, ("table_z_mm",),
+                                  np.array([support.lower_mm]), np.array([support.lower_mm]),
+                                  np.array([support.upper_mm])),))
+    iterations = []
+
+    def counted(*args, **kwargs):
+        equilibrium = solve_equilibrium(*args, **kwargs)
+        iterations.append(equilibrium.iterations)
+        return equilibrium
+
+    monkeypatch.setattr(refit, "solve_equilibrium", counted)
+    predicted = exact.predict(plate, np.array([height_mm]))
+    model = fe_model_with_effects(robot, plate.effects(np.array([height_mm])))
+    inputs = robot.cable_inputs(actuation)
+    tight = solve_equilibrium(model, inputs)
+    nominal_start = solve_equilibrium(model, inputs, start_mm=solution.positions_mm,
+                                      settings=SETTINGS)
+    n = robot.mesh.node_count
+    np.testing.assert_allclose(predicted.positions_mm[0], tight.positions_mm[:n], atol=1e-3)
+    assert np.abs(tight.positions_mm - solution.positions_mm).max() > 1.5
+    assert iterations == [3] and nominal_start.iterations >= 10

@@ -127,6 +127,11 @@ def test_quadratic_mesh_keeps_input_nodes_and_shares_mid_edge_nodes():
     clamped = fe.with_midside(face)
     assert np.all(fe.nodes_mm[clamped, 0] < 1e-9)
     assert len(clamped) == np.sum(fe.nodes_mm[:, 0] < 1e-9)
+    # a field given at the corners, linear along the edges, at every node
+    affine = nodes @ np.array([[1.0, 2.0], [-3.0, 0.5], [0.25, 4.0]]) + 7.0
+    np.testing.assert_allclose(fe.from_corners(affine), fe.nodes_mm @ np.array(
+        [[1.0, 2.0], [-3.0, 0.5], [0.25, 4.0]]) + 7.0)
+    np.testing.assert_array_equal(element_mesh(nodes, tets, "p1").from_corners(affine), affine)
 
 
 def test_hrz_lumping_is_positive_and_exact_in_total():

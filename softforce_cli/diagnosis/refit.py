@@ -159,6 +159,7 @@ class ExactModel:
         effective = effective_actuation(effects, self.contexts, cables)
         creep = any(e.name == "viscoelastic_creep" for e in physics)
         of_frame, firsts = self._groups(creep)
+        plate = self._plate_motion(candidate, values)
         predicted = solutions.predicted_mm[self.states.of_frame[firsts]].copy()
         solves = 0
         shared = fe_model_with_effects(robot, physics) if physics and not creep else None
@@ -183,6 +184,8 @@ class ExactModel:
             start = solutions.first_order(s, _column_changes(
                 candidate, values, context.hold_s,
                 dict(zip(cables, inputs - solutions.actuation[s], strict=True))))
+            if plate is not None:
+                start += robot.fe_mesh.from_corners(plate[s])
             try:
                 solution = solve_equilibrium(model, CableInputs(controls, inputs),
                                              start_mm=start, settings=DIRECT_SETTINGS)
@@ -200,6 +203,18 @@ class ExactModel:
             predicted = observed_points_robot(predicted.reshape(-1, 3), sensor,
                                               self.basis.robot_from_camera).reshape(shape)
         return Prediction(predicted, of_frame, solves)
+
+    def _plate_motion(self, candidate: Candidate, values: np.ndarray) -> np.ndarray | None:
+        """(S, n, 3) mm: each state's motion at the mesh nodes with the candidate's plate,
+        its contact solved on the state's linearisation (diagnosis.support), or None without
+        one. Newton's start: from the nominal equilibrium alone, a plate 30 mm into the
+        hanging Diamond pushes its nodes with 800 N (the coarse P2 model at (0, 6, 0, 6) with
+        the plate at -5.5 mm: 33 iterations, against 10 from this start)."""
+        for hypothesis, part in zip(candidate.hypotheses, candidate.split(values), strict=True):
+            if hypothesis.name == "support_contact":
+                height = dict(zip(hypothesis.free, part, strict=True))["table_z_mm"]
+                return self.basis.support.motion_mm(float(height))
+        return None
 
     def _groups(self, by_hold: bool) -> tuple[np.ndarray, np.ndarray]:
         """(of_frame (t,) each frame's group, firsts (G,) each group's first frame): the

@@ -176,6 +176,11 @@ class ElementMesh:
     def node_count(self) -> int:
         return len(self.nodes_mm)
 
+    def from_corners(self, corner_values: np.ndarray) -> np.ndarray:
+        """(N, ...) a field given at the corners (n, ...) at every node: a mid-edge node takes
+        its edge's mean (the field linear along the edge)."""
+        return _with_midside_means(np.asarray(corner_values), self.edges)
+
     def with_midside(self, corner_nodes: np.ndarray) -> np.ndarray:
         """(j,) sorted: the corner nodes given, and the mid-edge nodes of the edges whose two
         corners are both among them (so a clamped set keeps clamping the same faces)."""
@@ -211,9 +216,14 @@ def element_mesh(nodes_mm: np.ndarray, tets: np.ndarray, element: str = "p1") ->
     if ELEMENTS[element].node_count == tet_p1.NODE_COUNT:
         return ElementMesh(P1, nodes_mm, tets, len(nodes_mm), np.zeros((0, 2), dtype=np.int64))
     elements, edges = tet_p2.quadratic_tets(tets, len(nodes_mm))
-    middles = 0.5 * (nodes_mm[edges[:, 0]] + nodes_mm[edges[:, 1]])
-    return ElementMesh(ELEMENTS[element], np.vstack([nodes_mm, middles]), elements,
+    return ElementMesh(ELEMENTS[element], _with_midside_means(nodes_mm, edges), elements,
                        len(nodes_mm), edges)
+
+
+def _with_midside_means(corner_values: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """(n + e, ...) corner values (n, ...) followed by the means over the edges (e, 2)."""
+    middles = 0.5 * (corner_values[edges[:, 0]] + corner_values[edges[:, 1]])
+    return np.concatenate([corner_values, middles])
 
 
 def midside_offset_mm(nodes_mm: np.ndarray, elements: np.ndarray) -> float:
