@@ -37,11 +37,16 @@ from softforce_cli.diagnosis.selection import (
 from softforce_cli.diagnosis.sensitivities import ColumnSet, column_set, state_columns
 from softforce_cli.diagnosis.solves import SETTINGS, SolveCache, StateSolutions, solve_states
 from softforce_cli.diagnosis.states import States, group_states, trajectory_segments
-from softforce_cli.diagnosis.support import contact_candidates, one_sided_contact, support_basis
+from softforce_cli.diagnosis.support import (
+    contact_candidates,
+    one_sided_contact,
+    rim_heights_mm,
+    support_basis,
+)
 from softforce_cli.errors import SolverError
 from softforce_cli.fem.compliance import linearize
 from softforce_cli.fem.statics import SolverSettings, solve_by_continuation, solve_equilibrium
-from softforce_cli.model.effect_physics import fe_model_with_effects
+from softforce_cli.model.effect_physics import fe_model_with_effects, support_plane
 from softforce_cli.model.effects import FrameContext, frame_contexts, make_effect
 from softforce_cli.model.robot import load_robot
 from tests.conftest import SAMPLE_ROBOT
@@ -768,6 +773,29 @@ def test_plate_candidates_are_the_free_nodes_that_sink_without_facing_up(monkeyp
     monkeypatch.setattr(support, "MAX_CONTACT_NODES", 10)
     lowest = contact_candidates(robot, sunk[None])[0]
     assert len(lowest) == 10 and sunk[lowest, 2].max() <= sunk[np.setdiff1d(nodes, lowest), 2].min()
+
+
+def test_a_plates_height_is_resolved_to_the_rest_heights_around_it():
+    """The rest heights the summary gives around a fitted plate (support.rim_heights_mm) are
+    where the penalty plane (model.effect_physics.support_plane) changes the surface nodes
+    it props: the same nodes from the one below up to the one above, fewer past either."""
+    robot = load_robot(SAMPLE_ROBOT)
+    model = robot.nominal_fe_model
+    mesh = robot.mesh
+    facing = np.setdiff1d(mesh.surface_nodes, robot.fixed_nodes)
+    facing = facing[mesh.vertex_normals[facing, 2] < support.UPWARD_NORMAL]
+
+    def propped(height_mm: float) -> np.ndarray:
+        plane = support_plane(model, robot.fixed_nodes, height_mm, 0.18)
+        return np.intersect1d(plane.nodes, facing)
+
+    for fitted in (-7.46, -3.5932625547376214):  # the study's plates (fourteenth run)
+        below, above = rim_heights_mm(robot, fitted)
+        assert below <= fitted < above and above - below < 2.5
+        inside = np.linspace(below, above, 7)[:-1]
+        for height in inside:
+            np.testing.assert_array_equal(propped(height), propped(fitted))
+        assert len(propped(below - 1e-6)) > len(propped(fitted)) > len(propped(above))
 
 
 @pytest.mark.parametrize("height_mm", [-10.0, -9.0])

@@ -15,7 +15,9 @@ from softforce_cli import __version__
 from softforce_cli.diagnosis.pipeline import Diagnosis, Final, Screened
 from softforce_cli.diagnosis.refit import NoEquilibriumError
 from softforce_cli.diagnosis.selection import excess_share, explained_mm
+from softforce_cli.diagnosis.support import rim_heights_mm
 from softforce_cli.model.effects import EFFECTS, Effect, effect_toml
+from softforce_cli.model.robot import Robot
 
 FORMAT = "softforce.diagnosis"
 # JSON has no infinity: an interval bound at infinity (a base stiffness whose compliance
@@ -184,6 +186,9 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
                          f"baseline: {evidence['heldout_relative_nominal_mm']:.2f} -> "
                          f"{evidence['heldout_relative_final_mm']:.2f} mm, noise floor "
                          f"{diagnosis.noise_floor_mm:.2f} mm): physics outside the library?")
+    lines += [plate_resolution_line(diagnosis.robot, effect["table_z_mm"])
+              for final in diagnosis.selected for effect in final.candidate.effects(final.values)
+              if effect.name == "support_contact"]
     for group in diagnosis.groups:
         lines.append(f"this data cannot tell apart: {', '.join(group)} ({group_reason(group)})")
     lines += [unreached_line(final) for final in diagnosis.finals if final.refit.unreached]
@@ -231,6 +236,17 @@ def unreached_line(final: Final) -> str:
     return (f"{final.candidate.label}: the model has no equilibrium near the recording "
             f"further on{where}, so its fit stopped at {values}: a snap-through of this "
             "mesh may be what leaves the mismatch (a finer mesh would tell)")
+
+
+def plate_resolution_line(robot: Robot, height_mm: float) -> str:
+    """What a plate's fitted height is resolved to on this mesh (support.rim_heights_mm)."""
+    below, above = (f"{h:.2f} mm" if h is not None else "none"
+                    for h in rim_heights_mm(robot, height_mm))
+    return (f"support_contact: a plate props the nodes above it at rest and lets the others "
+            f"through, so its prediction jumps where its height passes a node's; this mesh's "
+            f"nearest to {height_mm:.2f} mm rest at {below} (below) and {above} (above): the "
+            "height is resolved to that spacing, not to its interval (a finer mesh would "
+            "tell)")
 
 
 def group_reason(group: list[str]) -> str:

@@ -107,6 +107,20 @@ def one_sided_contact(compliance: np.ndarray, gap_mm: np.ndarray) -> np.ndarray:
     return scipy.optimize.nnls(lower.T, target)[0]
 
 
+def rim_heights_mm(robot: Robot, height_mm: float) -> tuple[float | None, float | None]:
+    """(below, above) mm: the rest heights of the free surface nodes not facing up nearest a
+    plate at height_mm, at or below it and above it (None: no such node). The plate
+    props the nodes above it at rest and lets the others through, so between the two it
+    props the same nodes and its prediction is smooth; past either it jumps: a fitted height
+    is resolved to that spacing, whatever its interval says."""
+    mesh = robot.mesh
+    nodes = np.setdiff1d(mesh.surface_nodes, robot.fixed_nodes)
+    heights = mesh.nodes_mm[nodes[mesh.vertex_normals[nodes, 2] < UPWARD_NORMAL], 2]
+    below, above = heights[heights <= height_mm], heights[heights > height_mm]
+    return (float(below.max()) if len(below) else None,
+            float(above.min()) if len(above) else None)
+
+
 def contact_candidates(robot: Robot, predicted_mm: np.ndarray
                        ) -> tuple[np.ndarray, float, float]:
     """(nodes (m,), lowest plate height, highest) for the predicted mesh nodes (S, n, 3).
