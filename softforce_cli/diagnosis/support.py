@@ -107,15 +107,21 @@ def one_sided_contact(compliance: np.ndarray, gap_mm: np.ndarray) -> np.ndarray:
     return scipy.optimize.nnls(lower.T, target)[0]
 
 
+def facing_down(robot: Robot) -> np.ndarray:
+    """(k,) sorted: the free surface nodes whose outward normal does not point up (those a
+    plate below may touch)."""
+    mesh = robot.mesh
+    nodes = np.setdiff1d(mesh.surface_nodes, robot.fixed_nodes)
+    return nodes[mesh.vertex_normals[nodes, 2] < UPWARD_NORMAL]
+
+
 def rim_heights_mm(robot: Robot, height_mm: float) -> tuple[float | None, float | None]:
     """(below, above) mm: the rest heights of the free surface nodes not facing up nearest a
     plate at height_mm, at or below it and above it (None: no such node). The plate
     props the nodes above it at rest and lets the others through, so between the two it
     props the same nodes and its prediction is smooth; past either it jumps: a fitted height
     is resolved to that spacing, whatever its interval says."""
-    mesh = robot.mesh
-    nodes = np.setdiff1d(mesh.surface_nodes, robot.fixed_nodes)
-    heights = mesh.nodes_mm[nodes[mesh.vertex_normals[nodes, 2] < UPWARD_NORMAL], 2]
+    heights = robot.mesh.nodes_mm[facing_down(robot), 2]
     below, above = heights[heights <= height_mm], heights[heights > height_mm]
     return (float(below.max()) if len(below) else None,
             float(above.min()) if len(above) else None)
@@ -132,12 +138,10 @@ def contact_candidates(robot: Robot, predicted_mm: np.ndarray
     lets it through); the nodes that never reach that high are left out. Neither assumes
     where the robot stands: a body on a table, a finger hanging from a mount.
     """
-    mesh = robot.mesh
-    rest = mesh.nodes_mm
-    nodes = np.setdiff1d(mesh.surface_nodes, robot.fixed_nodes)
+    rest = robot.mesh.nodes_mm
+    nodes = facing_down(robot)
     deepest = predicted_mm[:, nodes, 2].min(axis=0)
-    keep = (mesh.vertex_normals[nodes, 2] < UPWARD_NORMAL) & (
-        deepest < rest[nodes, 2] - MIN_SINK_MM)
+    keep = deepest < rest[nodes, 2] - MIN_SINK_MM
     if not keep.any():
         return nodes[:0], 0.0, 0.0
     lowest = float(deepest[keep].min())
