@@ -6,7 +6,7 @@ static solves; calibration from 9 markers; and the accuracy against the full P2 
 untrained load cases. The reduced model is trained once and cached in out/bench_reduced/
 (delete it to retrain); alone, this script prints the rows and writes the accuracy plot:
 
-    .venv/bin/python benchmarks/bench_reduced.py [--study] [--tangent] [--solve]
+    .venv/bin/python benchmarks/bench_reduced.py [--study] [--tangent] [--solve] [--capacity]
 
 --study also sweeps the basis size and the ECSW tolerance on the cached snapshots, senses
 benchmarks/bench_sense.py's probe recording through each model, and writes
@@ -14,7 +14,8 @@ docs/figures/reduced_model_accuracy.png (about 45 minutes). --tangent times the 
 reduced tangent against each other in this process, interleaved (medians), and the float32
 tangent's effect on W (docs/reduced_model.md, "speed"). --solve times the pieces of a
 reduced static solve's Newton iteration in turn, and the compliance's cable rows now and as
-formed before.
+formed before. --capacity measures W at the loaded cases against the basis size alone
+(200, 280 and 400 modes, integrated exactly; a few minutes).
 """
 
 from __future__ import annotations
@@ -70,6 +71,8 @@ FIGURE = ROOT / "docs" / "figures" / "reduced_model_accuracy.png"
 # on the Diamond as accurate as the default 1e-3 with 0.7 times the points (--study).
 SETTINGS = TrainingSettings(box_fraction=0.5, ecsw_tolerance=3e-3)
 # (basis size, ECSW tolerance) pairs of the study (docs/reduced_model.md)
+# basis sizes of --capacity (no hyper-reduction: the basis alone)
+CAPACITY_MODES = (200, 280, 400)
 STUDY_GRID = ((200, 1e-3), (200, 3e-3), (200, 1e-2), (200, 3e-2), (160, 1e-3), (120, 1e-3),
               (160, 1e-2), (120, 1e-2))
 
@@ -417,7 +420,37 @@ def study() -> None:
     print(f"wrote {FIGURE}")
 
 
+def capacity_study() -> None:
+    """W at the loaded cases against the basis size alone: each model trained on the cached
+    snapshots without hyper-reduction (ECSW tolerance 0: every quadrature point at weight 1,
+    the exact Galerkin projection), so that only the basis differs (about a minute each)."""
+    full, _ = reduced_robot()
+    references = [(name, reference(full, name, case), case)
+                  for name, case in cases(full, SETTINGS.max_force_n)
+                  if "two contacts" not in name]
+    for modes in CAPACITY_MODES:
+        path = CACHE / f"capacity_{modes}.rom.npz"
+        if not path.exists():
+            settings = dataclasses.replace(SETTINGS, max_modes=modes, ecsw_tolerance=0.0,
+                                           validations=0)
+            save_reduction(path, train_robot(full, settings,
+                                             cache=CACHE / "p2.snapshots.npz"), force=True)
+        mesh = dataclasses.replace(full.config.mesh, reduced=path)
+        robot = dataclasses.replace(full, config=dataclasses.replace(full.config, mesh=mesh))
+        for name, answer, case in references:
+            errors = compare(answer, respond(robot.fe_model, case, full.feature_nodes,
+                                             full.feature_normals),
+                             full.rest_nodes_mm, full.mesh.surface_nodes)
+            blocks = ", ".join(f"{block} {100 * value:.1f}%"
+                               for block, value in errors.W_relative.items())
+            print(f"{modes} modes, every point | {name} | {errors.rms_mm:.3f} mm | {blocks}",
+                  flush=True)
+
+
 if __name__ == "__main__":
+    if "--capacity" in sys.argv:
+        capacity_study()
+        sys.exit()
     if "--study" in sys.argv:
         study()
     if "--tangent" in sys.argv:

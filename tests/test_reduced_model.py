@@ -31,6 +31,7 @@ from softforce_cli.fem.reduction.train import (
     CLAMP_CLEARANCE_MM,
     TrainingSettings,
     contact_sites,
+    every_point,
     states_then_responses,
     train_robot,
 )
@@ -348,7 +349,20 @@ def test_cli_reduce_resumes_from_snapshots_and_writes_a_usable_file(beam, tmp_pa
     assert not (tmp_path / "y.rom.npz").exists()
     loose = softforce("model", "reduce", toml, "-o", tmp_path / "z.rom.npz",
                       "--ecsw-tolerance", "1.5")
-    assert_one_line_error(loose, "--ecsw-tolerance 1.5 must be in (0, 1)")
+    assert_one_line_error(loose, "--ecsw-tolerance 1.5 must be in [0, 1)")
+
+
+def test_training_at_ecsw_tolerance_zero_keeps_every_point(beam):
+    """No hyper-reduction at tolerance 0 (the exact Galerkin projection, for studies of the
+    basis alone): every quadrature point at weight 1, on the same basis."""
+    robot, trained, cache = beam
+    exact = train_robot(robot, dataclasses.replace(SETTINGS, ecsw_tolerance=0.0,
+                                                   validations=0), cache=cache)
+    m, q = robot.full_fe_model.shape_gradients.shape[:2]
+    assert exact.weights.shape == (m * q,) and np.all(exact.weights == 1.0)
+    assert len(np.unique(exact.elements * q + exact.points)) == m * q
+    np.testing.assert_allclose(exact.basis, trained.basis, atol=1e-12)
+    assert len(trained.weights) < m * q
 
 
 def test_feature_responses_span_the_compliance_columns(beam):
@@ -375,10 +389,9 @@ def test_every_point_at_unit_weight_is_the_galerkin_projection(beam, element):
     the full model's own assembly."""
     robot, trained, _ = beam
     full = with_element(robot, element).full_fe_model
-    m, q = full.shape_gradients.shape[:2]
-    everything = dataclasses.replace(trained, element=element,
-                                     elements=np.repeat(np.arange(m), q),
-                                     points=np.tile(np.arange(q), m), weights=np.ones(m * q))
+    elements, points, weights = every_point(full)  # what training at ECSW tolerance 0 keeps
+    everything = dataclasses.replace(trained, element=element, elements=elements,
+                                     points=points, weights=weights)
     model = ReducedModel(full, everything)
     V = everything.basis
     x = full.rest_nodes_mm + (V @ np.linspace(-0.3, 0.4, V.shape[1])).reshape(-1, 3)

@@ -145,7 +145,8 @@ def reduce(
     ] = 1.0,
     ecsw_tolerance: Annotated[float | None, typer.Option(
         help="Relative residual of the sampled internal forces over the training set "
-             "(default 0.001; looser: fewer points, a faster update; docs/reduced_model.md).")
+             "(default 0.001; looser: fewer points, a faster update; 0: every point, the "
+             "exact projection, an update as slow as the mesh; docs/reduced_model.md).")
     ] = None,
     keep_snapshots: Annotated[bool, typer.Option(
         help="Keep the training snapshots (OUTPUT.snapshots.npz, ~100 MB) to retrain fast.")
@@ -180,8 +181,8 @@ def reduce(
     settings = TrainingSettings(max_force_n=max_force, max_modes=max_modes,
                                 box_fraction=box_fraction)
     if ecsw_tolerance is not None:
-        if not 0.0 < ecsw_tolerance < 1.0:
-            raise ModelError(f"--ecsw-tolerance {ecsw_tolerance:g} must be in (0, 1)")
+        if not 0.0 <= ecsw_tolerance < 1.0:
+            raise ModelError(f"--ecsw-tolerance {ecsw_tolerance:g} must be in [0, 1)")
         settings = dataclasses.replace(settings, ecsw_tolerance=ecsw_tolerance)
     # the snapshots are kept beside the output: a stopped training resumes after them
     cache = output.with_name(output.name + ".snapshots.npz")
