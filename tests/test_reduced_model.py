@@ -32,7 +32,7 @@ from softforce_cli.fem.reduction.train import (
     TrainingSettings,
     contact_sites,
     every_point,
-    states_then_responses,
+    successive_pod,
     train_robot,
 )
 from softforce_cli.fem.statics import PointLoads, solve_equilibrium
@@ -299,7 +299,7 @@ def test_the_equilibria_keep_their_modes_against_many_responses():
     responses = 50.0 * np.linalg.qr(rng.normal(size=(d, 60)))[0] @ rng.normal(size=(60, 300))
     responses += 0.01 * states @ rng.normal(size=(6, 300))
     states[:10] = responses[:10] = 0.0  # clamped dofs
-    basis, _ = states_then_responses(states, responses, 1e-10, max_modes=20)
+    basis, _ = successive_pod([states, responses], 1e-10, max_modes=20)
     assert basis.shape == (d, 20)
     np.testing.assert_allclose(basis.T @ basis, np.eye(20), atol=1e-12)
     assert projection_errors(basis, states).max() < 1e-10  # the equilibria exactly
@@ -307,6 +307,13 @@ def test_the_equilibria_keep_their_modes_against_many_responses():
     # one POD of everything, capped alike, spends its modes on the responses
     assert projection_errors(pod_basis(np.hstack([states, responses]), 1e-10, 20)[0],
                              states).max() > 0.1
+    # a second group (the loaded states' responses) keeps its modes against a larger third
+    loaded = np.linalg.qr(rng.normal(size=(d, 8)))[0] @ rng.normal(size=(8, 40))
+    loaded[:10] = 0.0
+    basis, _ = successive_pod([states, loaded, responses, states[:, :0]], 1e-10, 20)
+    assert projection_errors(basis, np.hstack([states, loaded])).max() < 1e-10
+    assert projection_errors(basis, responses).max() > 0.1
+    assert np.abs(basis[:10]).max() == 0.0
 
 
 def test_training_presses_away_from_the_clamp(beam):
