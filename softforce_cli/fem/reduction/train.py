@@ -59,7 +59,9 @@ class TrainingSettings:
                          0: no hyper-reduction, every quadrature point at weight 1 (the
                          Galerkin projection: exact, an update as costly as the mesh).
     max_modes          : cap on the basis size: the update costs ~ sampled points x r^2
-                         (on the Diamond 160 modes read the probes 18.6% off, 200 13.5%).
+                         (on the Diamond 200 modes read the bench's probes 8.5% off at the
+                         median and keep W under its 0.25 N probe within 3-10%, 280 within
+                         1-5% at twice the update: docs/reduced_model.md).
     max_elements       : cap on the sampled elements (None: the tolerance decides).
     tangent_directions : reduced directions the tangent is trained along, per response state.
     extra_actuations   : Halton points inside the box besides its structured points.
@@ -73,7 +75,8 @@ class TrainingSettings:
                          sensing linearises at loaded states; with them (and the equilibria
                          first in the POD, 200 modes) the reduced coarse p2 Diamond reads the
                          bench's 0.15-0.25 N probes 13.5% off at the median, against 86%
-                         before (docs/reduced_model.md).
+                         before, and 8.5% since their responses come first in the POD
+                         (successive_pod; docs/reduced_model.md).
     sample_points      : ECSW down to single quadrature points (a second pass among the
                          sampled elements' points: fewer evaluations per update); False keeps
                          whole elements.
@@ -221,9 +224,9 @@ def successive_pod(groups: list[np.ndarray], tolerance: float, max_modes: int
         modes, values = pod_basis(rest, tolerance, max_modes - basis.shape[1])
         basis = np.hstack([basis, modes])
         singular.append(values)
-    both = basis
-    basis, _ = np.linalg.qr(both)
-    basis[~np.any(both != 0.0, axis=1)] = 0.0  # clamped dofs stay exactly clamped
+    stacked = basis
+    basis, _ = np.linalg.qr(stacked)
+    basis[~np.any(stacked != 0.0, axis=1)] = 0.0  # clamped dofs stay exactly clamped
     return basis, np.concatenate(singular)
 
 
@@ -248,13 +251,14 @@ def sample(model: FEModel, basis: np.ndarray, data: TrainingSet, settings: Train
     costs ~ 9 r^2 per evaluated point, and an element carries 4 (P2) or 5 (P2-P0) of them, of
     which a few suffice: the second pass cuts the update several times for the same error.
     """
+    if settings.ecsw_tolerance <= 0.0:
+        return (*every_point(model), 0.0)
+
     def whole(x: np.ndarray, directions: np.ndarray | None) -> np.ndarray:
         if directions is None:
             return force_contributions(model, basis, x)
         return tangent_contributions(model, basis, x, directions)
 
-    if settings.ecsw_tolerance <= 0.0:
-        return (*every_point(model), 0.0)
     C, b, targets = ecsw_system(model, basis, data, settings.tangent_directions, whole)
     factor = POINT_TOLERANCE_FACTOR if settings.sample_points else 1.0
     first = sparse_nnls(C, b, factor * settings.ecsw_tolerance, settings.max_elements)
