@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import softforce_cli.diagnosis.pipeline as pipeline
 from benchmarks.law_blend_check import robot_with_law
 from softforce_cli.diagnosis.fitting import Candidate
-from softforce_cli.diagnosis.hypotheses import Hypothesis
+from softforce_cli.diagnosis.hypotheses import hypotheses
 from softforce_cli.diagnosis.run import DiagnoseInputs, run_diagnosis
 from softforce_cli.diagnosis.sensitivities import column_set
 from softforce_cli.diagnosis.solves import SETTINGS, SolveCache, StateSolutions
@@ -41,6 +41,7 @@ from softforce_cli.errors import SolverError
 from softforce_cli.fem.statics import solve_equilibrium
 from softforce_cli.model.effect_physics import fe_model_with_effects
 from softforce_cli.model.effects import make_effect
+from softforce_cli.model.robot import Robot
 
 STUDY = Path(__file__).resolve().parents[1] / "out" / "study_diagnosis"
 # what the refit allows a direct solve (diagnosis.refit.DIRECT_SETTINGS), and more
@@ -51,10 +52,10 @@ class _ExactModelBuiltError(Exception):
     """The diagnosis has built its exact model."""
 
 
-def plate(support: SupportBasis) -> Candidate:
-    return Candidate((Hypothesis("support_contact", None, ("table_z_mm",),
-                                 np.array([support.lower_mm]), np.array([support.lower_mm]),
-                                 np.array([support.upper_mm])),))
+def plate(robot: Robot, support: SupportBasis) -> Candidate:
+    """The plate diagnose screens and refits for `robot` (diagnosis.hypotheses)."""
+    return Candidate(tuple(h for h in hypotheses(robot, column_set(robot), support)
+                           if h.name == "support_contact"))
 
 
 def starts(inputs: np.ndarray, heights: list[float]) -> None:
@@ -99,13 +100,16 @@ def scan(case: str, heights: list[float]) -> None:
         raise _ExactModelBuiltError  # the exact model is all this needs
 
     pipeline.ExactModel = capture
-    with tempfile.TemporaryDirectory() as folder, contextlib.suppress(_ExactModelBuiltError):
-        run_diagnosis(DiagnoseInputs((STUDY / f"{case}.mcap",), STUDY / "diamond_neo-hookean.toml",
-                                     STUDY / "pose.json", Path(folder), cache=STUDY / "cache"),
-                      lambda *args: None)
-    pipeline.ExactModel = build
+    try:
+        with tempfile.TemporaryDirectory() as folder, contextlib.suppress(_ExactModelBuiltError):
+            run_diagnosis(DiagnoseInputs((STUDY / f"{case}.mcap",),
+                                         STUDY / "diamond_neo-hookean.toml", STUDY / "pose.json",
+                                         Path(folder), cache=STUDY / "cache"),
+                          lambda *args: None)
+    finally:
+        pipeline.ExactModel = build
     exact = captured["exact"]
-    candidate = plate(exact.basis.support)
+    candidate = plate(exact.solutions.robot, exact.basis.support)
     print(f"{case}: no plate {exact.nominal_field.rms():.3f} mm")
     for height in heights:
         prediction = exact.predict(candidate, np.array([height]))
