@@ -7,6 +7,7 @@ untrained load cases. The reduced model is trained once and cached in out/bench_
 (delete it to retrain); alone, this script prints the rows and writes the accuracy plot:
 
     .venv/bin/python benchmarks/bench_reduced.py [--study] [--tangent] [--solve] [--capacity]
+        [--starts]
 
 --study also sweeps the basis size and the ECSW tolerance on the cached snapshots, senses
 benchmarks/bench_sense.py's probe recording through each model, and writes
@@ -16,7 +17,9 @@ tangent's effect on W (docs/reduced_model.md, "speed"). --solve times the pieces
 reduced static solve's Newton iteration in turn, and the compliance's cable rows now and as
 formed before. --capacity measures W at the loaded cases against the basis size alone
 (200, 280 and 400 modes, integrated exactly; a few minutes), then 280 modes hyper-reduced as
-the bench trains them, with their update (7 minutes more).
+the bench trains them, with their update (7 minutes more). --starts compares static solves
+given no start (the nearest training equilibrium moved to first order) with solves from
+rest at 16 random actuations (a minute).
 """
 
 from __future__ import annotations
@@ -462,7 +465,42 @@ def capacity_study() -> None:
                   flush=True)
 
 
+def starts_study(count: int = 16) -> None:
+    """Newton iterations and time of reduced static solves given no start (the nearest
+    training equilibrium moved to first order) against solves from rest, at `count` random
+    actuations across the training box, and how far apart their answers land."""
+    _, reduced = reduced_robot()
+    model = reduced.fe_model
+    box = model.reduction.box
+    rng = np.random.default_rng(1)
+    rows = []
+    for values in box.cable_min + rng.random((count, len(box.cable_min))) * (
+            box.cable_max - box.cable_min):
+        inputs = reduced.cable_inputs(values)
+        answers, times = [], []
+        for start in (None, model.rest_nodes_mm):
+            def solve(start=start, inputs=inputs):
+                return solve_equilibrium(model, inputs, start_mm=start)
+            answers.append(solve())
+            times.append(median_time(solve, repeats=3, warmup=0))
+        apart = float(np.abs(answers[0].positions_mm - answers[1].positions_mm).max())
+        rows.append((answers[0].iterations, answers[1].iterations, *times, apart))
+        print(f"{np.round(values, 2)}: predicted start {rows[-1][0]} iterations "
+              f"{times[0] * 1e3:.0f} ms, rest {rows[-1][1]} iterations {times[1] * 1e3:.0f} ms,"
+              f" answers {apart:.1e} mm apart", flush=True)
+    table = np.array(rows)
+    print(f"median: predicted start {np.median(table[:, 0]):.0f} iterations "
+          f"({table[:, 0].min():.0f}-{table[:, 0].max():.0f}), "
+          f"{np.median(table[:, 2]) * 1e3:.0f} ms; from rest {np.median(table[:, 1]):.0f} "
+          f"({table[:, 1].min():.0f}-{table[:, 1].max():.0f}), "
+          f"{np.median(table[:, 3]) * 1e3:.0f} ms; answers at most {table[:, 4].max():.1e} mm "
+          "apart")
+
+
 if __name__ == "__main__":
+    if "--starts" in sys.argv:
+        starts_study()
+        sys.exit()
     if "--capacity" in sys.argv:
         capacity_study()
         sys.exit()

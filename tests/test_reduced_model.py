@@ -27,6 +27,7 @@ from softforce_cli.fem.reduction.ecsw import sparse_nnls
 from softforce_cli.fem.reduction.pod import pod_basis, projection_errors
 from softforce_cli.fem.reduction.reduced_model import ReducedModel, ReducedModelWarning
 from softforce_cli.fem.reduction.rom_file import load_reduction, reduced_model, save_reduction
+from softforce_cli.fem.reduction.starts import input_sensitivities
 from softforce_cli.fem.reduction.train import (
     CLAMP_CLEARANCE_MM,
     TrainingSettings,
@@ -35,7 +36,7 @@ from softforce_cli.fem.reduction.train import (
     successive_pod,
     train_robot,
 )
-from softforce_cli.fem.statics import PointLoads, solve_equilibrium
+from softforce_cli.fem.statics import PointLoads, SolverSettings, _next_step, solve_equilibrium
 from softforce_cli.model.robot import load_robot, with_element
 from softforce_cli.model.structured import box_mesh
 from tests.cli_runner import assert_one_line_error, softforce
@@ -481,8 +482,10 @@ def test_float32_tangent_keeps_newtons_answer_and_rate(beam):
     case = cases(robot)[1]
     points = Attachment.at_nodes(robot.feature_nodes[:1])
     loads = PointLoads(points, case.forces_n)
-    answers = [solve_equilibrium(ReducedModel(full, reduction, dtype), case.inputs, loads)
-               for dtype in (np.float64, np.float32)]
+    # to the full model's tolerance: the reduced one's (1e-3 mm) ends before the rate shows
+    tight = SolverSettings(step_tolerance_mm=1e-7)
+    answers = [solve_equilibrium(ReducedModel(full, reduction, dtype), case.inputs, loads,
+                                 settings=tight) for dtype in (np.float64, np.float32)]
     assert answers[1].iterations == answers[0].iterations >= 3
     assert np.abs(answers[1].positions_mm - answers[0].positions_mm).max() < 1e-6
     # still quadratic at the end (here 1.9e-7 N, then 2.0e-13 N; float64: 8.9e-14 N)
@@ -652,3 +655,83 @@ def test_held_starting_tensions_balance_the_start_and_ignore_idle_cables():
                                  np.zeros(40), controlled, np.zeros(3)) == 0.0)
     idle = _Evaluation(0.0, internal, np.zeros(1), np.zeros((1, 40)))
     assert _held_tensions(idle, np.zeros(40), controlled[:1], np.zeros(1))[0] == 0.0
+
+
+def test_input_sensitivities_solve_the_saddle_point_system():
+    """dq/du for a displacement-held and a force-controlled cable, against the saddle-point
+    system [K, -H_d^T; H_d, 0] [dq; dlam] = [H_f^T dT; du] solved whole."""
+    rng = np.random.default_rng(3)
+    c = 12
+    root = rng.normal(size=(c, c))
+    K = root @ root.T + c * np.eye(c)
+    H = rng.normal(size=(3, c))
+    held = np.array([True, False, True])
+    J = input_sensitivities(H, np.linalg.solve(K, H.T), held)
+    system = np.block([[K, -H[held].T], [H[held], np.zeros((2, 2))]])
+    for cable in range(3):
+        rhs = np.zeros(c + 2)
+        if held[cable]:
+            rhs[c + int(np.flatnonzero(np.flatnonzero(held) == cable)[0])] = 1.0
+        else:
+            rhs[:c] = H[cable]
+        np.testing.assert_allclose(J[:, cable], np.linalg.solve(system, rhs)[:c], atol=1e-12)
+
+
+def test_solves_start_at_the_nearest_training_equilibrium_moved_to_first_order(beam):
+    """A reduced solve given no start begins at the training equilibrium nearest to its
+    inputs moved to first order: exact at a training actuation, with an error that falls
+    as the square of the distance from it (the sensitivities are the equilibria's
+    derivative), and fewer Newton iterations than from rest to the same equilibrium."""
+    robot, reduction, _ = beam
+    model = ReducedModel(robot.full_fe_model, reduction)
+    space = model.coordinates
+    starts = reduction.starts
+    assert starts.inputs.shape == (reduction.info["static_snapshots"], 2)
+    corner = starts.inputs[np.argmax(starts.inputs.sum(axis=1))]  # both cables pulled
+    assert np.all(corner > 3.0)
+    assert solve_equilibrium(model, robot.cable_inputs(corner)).iterations == 1
+
+    def error(offset):
+        inputs = robot.cable_inputs(corner - offset)
+        x, _ = _plain_newton(model, inputs)
+        return np.abs(space.start(inputs).q - space.state(x).q).max()
+
+    errors = [error(np.array([1.0, 0.6]) * scale) for scale in (1.0, 0.5)]
+    assert errors[0] > 1e-3  # the body is nonlinear over this offset
+    assert 3.0 < errors[0] / errors[1] < 5.0  # second order
+    inputs = robot.cable_inputs(np.array([3.7, 1.3]))  # between training actuations
+    predicted = solve_equilibrium(model, inputs)
+    from_rest = solve_equilibrium(model, inputs, start_mm=model.rest_nodes_mm)
+    assert predicted.iterations < from_rest.iterations
+    np.testing.assert_allclose(predicted.positions_mm, from_rest.positions_mm, atol=1e-4)
+    # a file keeps them; one from before them loads without and starts at rest
+    path = robot.config.source.parent / "starts.rom.npz"
+    save_reduction(path, reduction, force=True)
+    np.testing.assert_array_equal(load_reduction(path).starts.sensitivities,
+                                  starts.sensitivities)
+    bare = ReducedModel(robot.full_fe_model, dataclasses.replace(reduction, starts=None))
+    np.testing.assert_array_equal(bare.coordinates.start(inputs).q, 0.0)
+
+
+def test_a_solve_ends_on_its_predicted_next_step():
+    """The next step predicted from the last full steps' sizes in quadratic convergence
+    (s_k+1 = C s_k^2, C the larger of the last two ratios), none before three steps that
+    shrink in a row."""
+    assert _next_step([10.0, 1.0, 0.1]) == pytest.approx(0.1 * 0.1**2)
+    assert _next_step([5.0, 1.0, 0.1]) == pytest.approx(0.1 * 0.1**2)
+    assert _next_step([10.0, 4.0, 0.1]) == pytest.approx(4.0 / 100.0 * 0.1**2)
+    assert _next_step([1.0, 0.1]) == np.inf
+    assert _next_step([1.0, 2.0, 0.1]) == np.inf
+
+
+@pytest.mark.parametrize("reduced", [False, True])
+def test_a_solve_stops_within_its_precision(beam, reduced):
+    """Ending on the predicted step, at the full model's 1e-7 mm or the reduced model's
+    1e-3 mm, leaves each at the equilibrium of 30 undamped Newton iterations (here 1e-7 mm
+    and 3e-9 mm)."""
+    robot, reduction, _ = beam
+    model = ReducedModel(robot.full_fe_model, reduction) if reduced else robot.full_fe_model
+    inputs = robot.cable_inputs(np.array([5.2, 2.9]))
+    answer = solve_equilibrium(model, inputs, start_mm=model.rest_nodes_mm)
+    x, _ = _plain_newton(model, inputs)
+    assert np.abs(answer.positions_mm - x).max() < 1e-6

@@ -43,13 +43,16 @@ from softforce_cli.model.robot import Robot, with_element
 
 # Diagnosis compares shapes against a noise floor of ~0.3 mm: Newton's last full step being
 # under 0.01 mm leaves the position known to ~1e-4 mm (quadratic convergence); the solver's
-# defaults (1e-7 mm) cost a P2 state two more iterations. A solve ends on that step only,
+# defaults (1e-7 mm) cost a P2 state two more iterations. Ending instead on a predicted step
+# under 1e-4 mm (fem.statics, the same precision) took 65 tangents against 62 to diagnose
+# sample_data's diagnose_slack, and is not used. A solve ends on a step only,
 # never on a small force residual alone: the residual is checked per degree of freedom, and
 # a start whose only imbalance is a share of the weight spread over every node passes any
 # per-node threshold far from equilibrium (a P2 beam 40% softer, started from its nominal
 # equilibrium: 5e-5 N per node, 2 mm from its equilibrium, where 1e-3 N stopped it at once;
 # the Diamond's nodes carry 5e-4 N of weight each).
-SETTINGS = SolverSettings(step_tolerance_mm=1e-2, force_tolerance_n=0.0)
+SETTINGS = SolverSettings(step_tolerance_mm=1e-2, force_tolerance_n=0.0,
+                          predicted_step=False)
 # Bump when what a cached solve means changes.
 CACHE_VERSION = 2
 # Laws whose blend column is the secant to the other law (one more solve per state) instead

@@ -98,9 +98,18 @@ class Coordinates(Protocol):
         """T^T (gravity + loads) (c,) N: the dead loads in these coordinates."""
         ...
 
+    # A static solve ends when its Newton step's largest coordinate is below this (mm),
+    # unless its settings ask for another tolerance (fem.statics.SolverSettings)
+    step_tolerance_mm: float
+
     def state(self, positions_mm: np.ndarray | None = None) -> State:
         """The configuration of the form x_0 + T q nearest to positions (n, 3) (None: the
         rest configuration), to start a static solve from."""
+        ...
+
+    def start(self, inputs: CableInputs) -> State:
+        """Where a static solve at cable inputs starts when it is given no start: the rest
+        configuration, or what the coordinates predict for the inputs."""
         ...
 
     def cables(self, positions_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -165,9 +174,15 @@ class FreeDofs:
             forces = forces + loads.nodal(self.model.node_count)
         return forces.ravel()[self.free]
 
+    step_tolerance_mm = 1e-7  # far below any camera's noise (D415: ~1 mm)
+
     def state(self, positions_mm: np.ndarray | None = None) -> NodalState:
         start = self.model.rest_nodes_mm if positions_mm is None else positions_mm
         return NodalState(self, np.array(start, dtype=float))
+
+    def start(self, inputs: CableInputs) -> NodalState:
+        """The rest configuration: the full model keeps no equilibria to predict from."""
+        return self.state()
 
     def cables(self, positions_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return (self.model.cable_shortenings(positions_mm),

@@ -37,6 +37,7 @@ from softforce_cli.fem.element import gradient_operators
 from softforce_cli.fem.model import FEModel
 from softforce_cli.fem.reduction.dense import DenseFactorization
 from softforce_cli.fem.reduction.ecsw import point_operators
+from softforce_cli.fem.reduction.starts import StartLibrary
 from softforce_cli.fem.reduction.tangent import TANGENT_DTYPE, ReducedTangent
 from softforce_cli.fem.reduction.threads import on_one_blas_thread
 
@@ -44,6 +45,11 @@ from softforce_cli.fem.reduction.threads import on_one_blas_thread
 BOX_MARGIN = 0.1
 # External forces (besides gravity) beyond this multiple of the largest trained one warn.
 FORCE_MARGIN = 1.5
+# A reduced static solve ends once its Newton step, or the next one predicted, moves no mode
+# by more than this (mm): the solution is then known to about that, where the reduced model
+# is 0.03-0.13 mm from its full model (docs/reduced_model.md), and the one or two iterations
+# more that the full model's 1e-7 mm costs (a tangent each) buy nothing.
+STEP_TOLERANCE_MM = 1e-3
 # node_rows keeps the rows of V for node sets of at least this many nodes, the last few sets
 # (a sensor asks for its mesh's nodes every update; a handful of nodes costs nothing to gather)
 KEPT_NODE_ROWS_FROM = 64
@@ -93,6 +99,8 @@ class Reduction:
     fingerprint : {part: hash} of the mesh, element, supports, material and cables.
     young_modulus_mpa : E it was trained with (forces scale with E: any E reuses it).
     info        : training figures (modes, energy threshold, ECSW residual, times), for docs.
+    starts      : its own equilibria at the training actuations, to start static solves
+                  from (None in files from before they were kept: solves start at rest).
     """
 
     element: str
@@ -104,6 +112,7 @@ class Reduction:
     fingerprint: dict[str, str]
     young_modulus_mpa: float
     info: dict[str, Any]
+    starts: StartLibrary | None = None
 
     @property
     def mode_count(self) -> int:
@@ -194,6 +203,8 @@ class ReducedModel:
 
 class ReducedCoordinates:
     """fem.coordinates protocol for x = x_rest + V q with hyper-reduced element sums."""
+
+    step_tolerance_mm = STEP_TOLERANCE_MM
 
     def __init__(self, model: ReducedModel) -> None:
         full, reduction = model.full, model.reduction
@@ -306,6 +317,17 @@ class ReducedCoordinates:
         if positions_mm is None:
             return ReducedState(self, np.zeros(self.size))
         return ReducedState(self, self.basis.T @ (np.asarray(positions_mm) - self.rest).ravel())
+
+    def start(self, inputs: CableInputs) -> ReducedState:
+        """The training equilibrium nearest to the inputs moved to first order (inputs
+        outside the box: from the nearest point of the box), or rest in a file without
+        them or for other cable controls."""
+        reduction = self.model.reduction
+        box = reduction.box
+        if reduction.starts is None or tuple(inputs.control) != box.controls:
+            return ReducedState(self, np.zeros(self.size))
+        values = np.clip(inputs.values, box.cable_min, box.cable_max)
+        return ReducedState(self, reduction.starts.predict(values))
 
     def cables(self, positions_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self._cable_terms(np.asarray(positions_mm)[self.cable_nodes])

@@ -1,8 +1,11 @@
 """The .rom.npz file: a trained reduction, with the fingerprint of the model it belongs to.
 
 Arrays: basis (3n, r), elements (s,), points (s,), weights (s,), cable_min (a,), cable_max (a,),
-gravity_mm_s2 (3,); `meta`: a JSON string with format, element, fingerprint, controls,
-max_force_n, rms_error_mm, max_displacement_mm, young_modulus_mpa and info (training figures).
+gravity_mm_s2 (3,); start_inputs (k, a), start_coordinates (k, r), start_sensitivities
+(k, r, a) and start_scale (a,), the equilibria static solves start from (absent in files
+from before them, which load with none); `meta`: a JSON string with format, element,
+fingerprint, controls, max_force_n, rms_error_mm, max_displacement_mm, young_modulus_mpa and
+info (training figures).
 
 The fingerprint hashes what the basis and the sampling are only valid for: the FE nodes and
 elements, the element type, the clamped nodes, the law and Poisson's ratio, and the cables'
@@ -22,6 +25,7 @@ import numpy as np
 from softforce_cli.errors import ModelError
 from softforce_cli.fem.model import FEModel
 from softforce_cli.fem.reduction.reduced_model import ReducedModel, Reduction, TrainingBox
+from softforce_cli.fem.reduction.starts import StartLibrary
 from softforce_cli.io.atomic import atomic_path
 
 FORMAT = "softforce-rom-2"  # 2: sampled quadrature points, not whole elements
@@ -62,11 +66,16 @@ def save_reduction(path: Path, reduction: Reduction, force: bool = False) -> Non
                                 if np.isfinite(box.max_displacement_mm) else None),
         "young_modulus_mpa": reduction.young_modulus_mpa, "info": reduction.info,
     }
+    starts = reduction.starts
+    start_arrays = {} if starts is None else {
+        "start_inputs": starts.inputs, "start_coordinates": starts.coordinates,
+        "start_sensitivities": starts.sensitivities, "start_scale": starts.scale}
     with atomic_path(Path(path), force=force) as temporary, open(temporary, "wb") as stream:
         np.savez(stream, basis=reduction.basis, elements=reduction.elements,
                  points=reduction.points, weights=reduction.weights,
                  cable_min=box.cable_min, cable_max=box.cable_max,
-                 gravity_mm_s2=box.gravity_mm_s2, meta=np.array(json.dumps(meta)))
+                 gravity_mm_s2=box.gravity_mm_s2, meta=np.array(json.dumps(meta)),
+                 **start_arrays)
 
 
 def load_reduction(path: Path) -> Reduction:
@@ -90,10 +99,13 @@ def load_reduction(path: Path) -> Reduction:
                       float(meta["max_force_n"]), arrays["gravity_mm_s2"],
                       float("nan") if rms is None else float(rms),
                       float("nan") if moved is None else float(moved))
+    starts = (StartLibrary(arrays["start_inputs"], arrays["start_coordinates"],
+                           arrays["start_sensitivities"], arrays["start_scale"])
+              if "start_inputs" in arrays else None)
     return Reduction(meta["element"], arrays["basis"], arrays["elements"].astype(np.int64),
                      arrays["points"].astype(np.int64), arrays["weights"], box,
                      dict(meta["fingerprint"]), float(meta["young_modulus_mpa"]),
-                     dict(meta["info"]))
+                     dict(meta["info"]), starts)
 
 
 def reduced_model(full: FEModel, reduction: Reduction, source: Path | str = "reduced model"

@@ -40,6 +40,7 @@ from softforce_cli.fem.reduction.snapshots import (
     load_training_set,
     save_training_set,
 )
+from softforce_cli.fem.reduction.starts import start_library
 from softforce_cli.fem.statics import PointLoads, solve_equilibrium
 
 # The validation's contact force, as a fraction of max_force_n: a probe's 0.3 N at the
@@ -114,7 +115,7 @@ def train(model: FEModel, controls: tuple[str, ...], low: np.ndarray, high: np.n
     """
     started = time.perf_counter()
     actuations = actuation_design(low, high, settings.extra_actuations)
-    total = 2 * len(actuations) + 2 + settings.validations
+    total = 2 * len(actuations) + 3 + settings.validations
 
     def step(done: int) -> None:
         if progress is not None:
@@ -166,16 +167,21 @@ def train(model: FEModel, controls: tuple[str, ...], low: np.ndarray, high: np.n
     }
     reduction = Reduction(model.element.name, basis, elements, points, weights, box,
                           fingerprint(model), model.material.young_modulus_mpa, info)
+    starts = start_library(ReducedModel(model, reduction), tuple(controls), data.actuations,
+                           data.positions_mm, np.maximum(box.cable_max - box.cable_min, 1e-9))
+    reduction = dataclasses.replace(reduction, starts=starts)
+    step(2 * len(actuations) + 3)
+    info["starts_s"] = time.perf_counter() - started - snapshots_s - pod_s - ecsw_s
     errors = validate(model, reduction, controls, low, high, surface_nodes,
                       settings.validations, lambda done: step(total - settings.validations
                                                               + done), sites)
     rms = float(np.sqrt(np.mean(np.square(errors)))) if len(errors) else float("nan")
     info.update(validation_rms_mm=errors.tolist(),
-                validation_s=time.perf_counter() - started - snapshots_s - pod_s - ecsw_s,
+                validation_s=(time.perf_counter() - started - snapshots_s - pod_s - ecsw_s
+                              - info["starts_s"]),
                 total_s=time.perf_counter() - started)
-    return Reduction(reduction.element, basis, elements, points, weights,
-                     dataclasses.replace(box, rms_error_mm=rms),
-                     reduction.fingerprint, reduction.young_modulus_mpa, info)
+    return dataclasses.replace(reduction, box=dataclasses.replace(box, rms_error_mm=rms),
+                               info=info)
 
 
 def train_robot(robot, settings: TrainingSettings = TrainingSettings(),
