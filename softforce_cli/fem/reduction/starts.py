@@ -8,7 +8,8 @@ to first order:
 
     q_0 = q_k + J_k (u - u_k),   k = argmin_k |(u - u_k) / (box width)|,
 
-which Newton's method finishes in 4-7 iterations on the Diamond (benchmarks/bench_reduced.py).
+which Newton's method finishes in 3-7 iterations on the Diamond, against 8-13 from rest
+(`benchmarks/bench_reduced.py --starts`, 16 random actuations).
 J_k = dq/du at equilibrium k, from the saddle-point system of eq. 4-5 with every
 displacement-controlled cable taut (the side a pull goes):
 
@@ -21,13 +22,16 @@ for displacement-controlled cables d and force-controlled cables f.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from softforce_cli.fem.cables import CableInputs
 from softforce_cli.fem.compliance import linearize_state
-from softforce_cli.fem.model import FEModel
 from softforce_cli.fem.statics import solve_equilibrium
+
+if TYPE_CHECKING:  # reduced_model keeps a StartLibrary
+    from softforce_cli.fem.reduction.reduced_model import ReducedModel
 
 
 @dataclass(frozen=True)
@@ -68,11 +72,11 @@ def input_sensitivities(rows: np.ndarray, responses: np.ndarray, controlled: np.
     return out
 
 
-def start_library(model: FEModel, controls: tuple[str, ...], actuations: np.ndarray,
+def start_library(model: ReducedModel, controls: tuple[str, ...], actuations: np.ndarray,
                   positions_mm: np.ndarray, scale: np.ndarray) -> StartLibrary:
     """The reduced model's own equilibria at training actuations (k, a), each solved from
     the full model's equilibrium there (k, n, 3) mm, with their sensitivities; `scale` (a,)
-    the distance unit per cable. `model` is a fem.reduction.reduced_model.ReducedModel."""
+    the distance unit per cable."""
     space = model.coordinates
     coordinates, sensitivities = [], []
     for values, positions in zip(actuations, positions_mm, strict=True):
