@@ -709,6 +709,12 @@ def test_solves_start_at_the_nearest_training_equilibrium_moved_to_first_order(b
     save_reduction(path, reduction, force=True)
     np.testing.assert_array_equal(load_reduction(path).starts.sensitivities,
                                   starts.sensitivities)
+    with np.load(path) as data:
+        arrays = dict(data)
+    arrays["start_coordinates"] = arrays["start_coordinates"][:, 1:]  # a damaged file
+    np.savez(path, **arrays)
+    with pytest.raises(ModelError, match="start equilibria do not fit"):
+        load_reduction(path)
     bare = ReducedModel(robot.full_fe_model, dataclasses.replace(reduction, starts=None))
     np.testing.assert_array_equal(bare.coordinates.start(inputs).q, 0.0)
 

@@ -99,13 +99,29 @@ def load_reduction(path: Path) -> Reduction:
                       float(meta["max_force_n"]), arrays["gravity_mm_s2"],
                       float("nan") if rms is None else float(rms),
                       float("nan") if moved is None else float(moved))
-    starts = (StartLibrary(arrays["start_inputs"], arrays["start_coordinates"],
-                           arrays["start_sensitivities"], arrays["start_scale"])
-              if "start_inputs" in arrays else None)
+    starts = _starts(path, arrays) if "start_inputs" in arrays else None
     return Reduction(meta["element"], arrays["basis"], arrays["elements"].astype(np.int64),
                      arrays["points"].astype(np.int64), arrays["weights"], box,
                      dict(meta["fingerprint"]), float(meta["young_modulus_mpa"]),
                      dict(meta["info"]), starts)
+
+
+def _starts(path: Path, arrays: dict[str, np.ndarray]) -> StartLibrary:
+    """The file's start equilibria; ModelError when their shapes disagree with the basis and
+    the cables (a damaged file: a solve would fail far from the cause)."""
+    try:
+        starts = StartLibrary(arrays["start_inputs"], arrays["start_coordinates"],
+                              arrays["start_sensitivities"], arrays["start_scale"])
+    except KeyError as error:
+        raise ModelError(f"{path}: start equilibria incomplete (no {error}); retrain it with "
+                         "`softforce model reduce`") from error
+    k, a = starts.inputs.shape if starts.inputs.ndim == 2 else (-1, -1)
+    r = arrays["basis"].shape[1]
+    if (a != len(arrays["cable_min"]) or starts.coordinates.shape != (k, r)
+            or starts.sensitivities.shape != (k, r, a) or starts.scale.shape != (a,)):
+        raise ModelError(f"{path}: start equilibria do not fit its basis and cables; retrain "
+                         "it with `softforce model reduce`")
+    return starts
 
 
 def reduced_model(full: FEModel, reduction: Reduction, source: Path | str = "reduced model"
