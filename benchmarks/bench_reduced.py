@@ -4,8 +4,9 @@ Rows: training time; one sensing update (reduced tangent, its factorisation, W f
 effectors + 4 cables + 2 forces, free motion) through the unchanged fem.compliance seam;
 static solves; calibration from 9 markers; the accuracy against the full P2 model on
 untrained load cases; and the update and accuracy of the same basis sampled for speed
-(FAST_SETTINGS, ECSW 3e-2, cached as out/bench_reduced/diamond_p2_fast.rom.npz). The reduced model is trained once and cached in out/bench_reduced/
-(delete it to retrain); alone, this script prints the rows and writes the accuracy plot:
+(FAST_SETTINGS, ECSW 3e-2). Each reduced model is trained once and cached in
+out/bench_reduced/ (diamond_p2.rom.npz, diamond_p2_fast.rom.npz: delete one to retrain it);
+alone, this script prints the rows and writes the accuracy plot:
 
     .venv/bin/python benchmarks/bench_reduced.py [--study] [--tangent] [--solve] [--capacity]
         [--starts]
