@@ -225,14 +225,23 @@ def run() -> list[BenchRow]:
 
 
 def fast_rows(full: Robot) -> list[BenchRow]:
-    """The update and the worst untrained case inside the box (the two contacts' fold left
-    out) of the same basis sampled at FAST_SETTINGS' ECSW tolerance."""
+    """The update, the static solves and the worst untrained case inside the box (the two
+    contacts' fold left out) of the same basis sampled at FAST_SETTINGS' ECSW tolerance."""
     _, fast = reduced_robot(settings=FAST_SETTINGS, stem="diamond_p2_fast")
     model = fast.fe_model
     info = model.reduction.info
     equilibrium = solve_equilibrium(model, fast.cable_inputs(ACTUATION))
     update_s = median_time(update_callable(fast, equilibrium.positions_mm,
                                            equilibrium.cable_tensions_n), repeats=200, warmup=5)
+    inputs = fast.cable_inputs(ACTUATION)
+    near = solve_equilibrium(model, fast.cable_inputs(ACTUATION - [0.5, 0.0, 0.0, 0.0]))
+    solves = {"from rest": (None, solve_equilibrium(model, inputs).iterations),
+              "from a frame 0.5 mm away": (near.positions_mm, solve_equilibrium(
+                  model, inputs, start_mm=near.positions_mm).iterations)}
+    solve_s = {name: median_time(lambda start=start: solve_equilibrium(model, inputs,
+                                                                       start_mm=start),
+                                 repeats=20)
+               for name, (start, _) in solves.items()}
     inside = [(name, errors) for name, errors in accuracy(full, fast,
                                                           model.reduction.box.max_force_n)
               if "two contacts" not in name]
@@ -242,6 +251,9 @@ def fast_rows(full: Robot) -> list[BenchRow]:
     return [
         BenchRow(f"Reduced FE update, p2, {label}", update_s, 200, ">= 200 Hz",
                  f"{1 / update_s:.0f} Hz", f"r = {info['modes']}; the same update as above"),
+        *(BenchRow(f"Reduced static solve {name}, {label}", solve_s[name], 20, "< 20 ms",
+                   f"{solve_s[name] * 1e3:.0f} ms", f"{iterations} Newton iterations; the "
+                   "same solve as above") for name, (_, iterations) in solves.items()),
         BenchRow(f"Reduced vs full p2, {label}: the untrained cases but the two contacts",
                  0.0, 1, "<= 0.5 mm, W <= 5%",
                  f"{rms:.3f} mm RMS at most, W {max(W.values()):.1f}% at most",
