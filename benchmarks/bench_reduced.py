@@ -542,20 +542,16 @@ def starts_study(count: int = 16) -> None:
           "apart")
 
 
+# studies that replace the rows (--study prints the rows after it)
+STUDIES = {"--starts": starts_study, "--capacity": capacity_study, "--tangent": tangent_study,
+           "--solve": solve_study}
+
 if __name__ == "__main__":
-    if "--starts" in sys.argv:
-        starts_study()
-        sys.exit()
-    if "--capacity" in sys.argv:
-        capacity_study()
+    chosen = [function for flag, function in STUDIES.items() if flag in sys.argv]
+    if chosen:
+        chosen[0]()
         sys.exit()
     if "--study" in sys.argv:
         study()
-    if "--tangent" in sys.argv:
-        tangent_study()
-        sys.exit()
-    if "--solve" in sys.argv:
-        solve_study()
-        sys.exit()
     for bench_row in run():
         print(bench_row)

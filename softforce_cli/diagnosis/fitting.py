@@ -55,6 +55,12 @@ class Candidate:
         return tuple(h.effect(v) for h, v in zip(self.hypotheses, self.split(values),
                                                  strict=True))
 
+    def plate_height_mm(self, values: np.ndarray) -> float | None:
+        """The height (mm) of the candidate's plate under the body at `values`
+        (support_contact), None without one."""
+        heights = [e["table_z_mm"] for e in self.effects(values) if e.name == "support_contact"]
+        return heights[0] if heights else None
+
     def shift(self, values: np.ndarray, inputs: Inputs) -> np.ndarray:
         """(E,) the summed normal shift of every hypothesis at `values`."""
         parts = self.split(values)

@@ -210,9 +210,8 @@ class ExactModel:
         one. Newton's start: from the nominal equilibrium alone, a plate 30 mm into the
         hanging Diamond pushes its nodes with 800 N (the coarse P2 model at (0, 6, 0, 6) with
         the plate at -5.5 mm: 33 iterations, against 10 from this start)."""
-        heights = [e["table_z_mm"] for e in candidate.effects(values)
-                   if e.name == "support_contact"]
-        return self.basis.support.motion_mm(heights[0]) if heights else None
+        height = candidate.plate_height_mm(values)
+        return None if height is None else self.basis.support.motion_mm(height)
 
     def _groups(self, by_hold: bool) -> tuple[np.ndarray, np.ndarray]:
         """(of_frame (t,) each frame's group, firsts (G,) each group's first frame): the

@@ -186,9 +186,8 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
                          f"baseline: {evidence['heldout_relative_nominal_mm']:.2f} -> "
                          f"{evidence['heldout_relative_final_mm']:.2f} mm, noise floor "
                          f"{diagnosis.noise_floor_mm:.2f} mm): physics outside the library?")
-    lines += [plate_resolution_line(diagnosis.robot, effect["table_z_mm"])
-              for final in diagnosis.selected for effect in final.candidate.effects(final.values)
-              if effect.name == "support_contact"]
+    lines += [plate_resolution_line(diagnosis.robot, height) for final in diagnosis.selected
+              if (height := final.candidate.plate_height_mm(final.values)) is not None]
     for group in diagnosis.groups:
         lines.append(f"this data cannot tell apart: {', '.join(group)} ({group_reason(group)})")
     lines += [unreached_line(final) for final in diagnosis.finals if final.refit.unreached]

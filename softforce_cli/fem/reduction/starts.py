@@ -27,7 +27,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from softforce_cli.fem.cables import CableInputs
-from softforce_cli.fem.compliance import linearize_state
 from softforce_cli.fem.statics import solve_equilibrium
 
 if TYPE_CHECKING:  # reduced_model keeps a StartLibrary
@@ -83,9 +82,9 @@ def start_library(model: ReducedModel, controls: tuple[str, ...], actuations: np
         inputs = CableInputs(controls, values)
         equilibrium = solve_equilibrium(model, inputs, start_mm=positions)
         state = space.state(equilibrium.positions_mm)
-        linear = linearize_state(model, state, equilibrium.cable_tensions_n)
+        factor = space.factorize(state.tangent(equilibrium.cable_tensions_n))
         _, rows = state.cables()
-        responses = linear.factorization.solve(rows.T)
+        responses = factor.solve(rows.T)
         coordinates.append(state.q)
         sensitivities.append(input_sensitivities(rows, responses,
                                                  inputs.displacement_controlled))
