@@ -151,8 +151,8 @@ def _base_give(model: FEModel, x: np.ndarray, tensions_n: np.ndarray,
     it (correlation 0.99; docs/diagnosis.md).
     """
     _, springs = base_springs(model, 1.0)  # shares of a unit total stiffness
-    cables = (model.cable_jacobian(x).T @ tensions_n).reshape(-1, 3)
-    reactions = model.coordinates.reactions(x, model.gravity_forces_n + cables)
+    reactions = model.coordinates.state(x.reshape(-1, 3)).reactions(model.gravity_forces_n,
+                                                                    tensions_n)
     carried = -reactions[np.searchsorted(model.fixed_nodes, springs.nodes)]  # (s, 3) N
     k = springs.stiffness_n_per_mm
     arm = x.reshape(-1, 3)[springs.nodes]

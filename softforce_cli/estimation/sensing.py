@@ -148,7 +148,7 @@ class ForceSensor:
         """Move the FE configuration to the unloaded equilibrium at the current actuation
         (where sensing starts, and starts again when it has lost the robot)."""
         start = solve_equilibrium(self.model, self.robot.cable_inputs(self.actuation))
-        self.state: State = self.model.coordinates.state(start.positions_mm)
+        self.state: State = start.state
         self.tensions = start.cable_tensions_n
         self.linear = None
 

@@ -74,6 +74,11 @@ class State(Protocol):
         """(k, 3) mm: the positions of some nodes (k,), without lifting the others."""
         ...
 
+    def reactions(self, external_n: np.ndarray, tensions_n: np.ndarray) -> np.ndarray:
+        """(k, 3) N the supports exert on the clamped nodes, under dead loads external_n
+        (n, 3) N (gravity and point loads) and cable tensions (a,) N."""
+        ...
+
 
 class Coordinates(Protocol):
     """Generalised coordinates q of a model, x = x_0 + T q (T: (3n, c))."""
@@ -133,15 +138,11 @@ class Coordinates(Protocol):
         what the coordinates were built for."""
         ...
 
-    def check_solution(self, positions_mm: np.ndarray) -> None:
-        """Warn (warnings.warn) when a static solution (n, 3) lies outside what the
-        coordinates were built for."""
+    def check_solution(self, state: State) -> None:
+        """Warn (warnings.warn) when a static solution lies outside what the coordinates
+        were built for."""
         ...
 
-    def reactions(self, positions_mm: np.ndarray, external_n: np.ndarray) -> np.ndarray:
-        """(k, 3) N the supports exert on the clamped nodes, for positions (n, 3) and every
-        force but the elastic ones and the supports' (n, 3) N (loads, gravity, cables)."""
-        ...
 
 
 class FreeDofs:
@@ -204,12 +205,8 @@ class FreeDofs:
     def check_load(self, inputs: CableInputs, external_n: np.ndarray) -> None:
         """The full model holds for any load: nothing to check."""
 
-    def check_solution(self, positions_mm: np.ndarray) -> None:
+    def check_solution(self, state: State) -> None:
         """The full model holds for any solution: nothing to check."""
-
-    def reactions(self, positions_mm: np.ndarray, external_n: np.ndarray) -> np.ndarray:
-        total = external_n - self.model.internal_forces(positions_mm)
-        return -total[self.model.fixed_nodes]
 
 
 class NodalState:
@@ -237,3 +234,9 @@ class NodalState:
 
     def nodes_mm(self, nodes: np.ndarray) -> np.ndarray:
         return self.positions_mm[nodes]
+
+    def reactions(self, external_n: np.ndarray, tensions_n: np.ndarray) -> np.ndarray:
+        model = self.space.model
+        cables = (model.cable_jacobian(self.positions_mm).T @ tensions_n).reshape(-1, 3)
+        total = external_n + cables - model.internal_forces(self.positions_mm)
+        return -total[model.fixed_nodes]

@@ -8,6 +8,7 @@ the paper's eq. 4), and a cable asked to push goes slack instead (lam >= 0).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 import scipy.optimize
@@ -58,19 +59,39 @@ class SolverSettings:
 class Equilibrium:
     """A static equilibrium.
 
-    positions_mm           : (n, 3) deformed node positions in the robot frame.
+    state                  : the configuration in the model's coordinates (fem.coordinates),
+                             where a next solve can start (solve_equilibrium's start_state).
+    positions_mm           : (n, 3) deformed node positions in the robot frame, formed from
+                             the state when first read (a reduced model's lift reads all of
+                             its basis: 2.6 ms for the Diamond's 200 modes).
     cable_tensions_n       : (a,) cable forces (>= 0 for displacement control).
     cable_shortenings_mm   : (a,) delta = L0 - L of each cable.
-    reaction_forces_n      : (k, 3) forces the supports exert on the clamped nodes.
+    external_n             : (n, 3) the dead loads it holds (gravity and point loads) N.
+    reaction_forces_n      : (k, 3) forces the supports exert on the clamped nodes, formed
+                             when first read.
     residual_history_n     : max free-dof force residual before each iteration.
     """
 
-    positions_mm: np.ndarray
+    state: State = field(repr=False, compare=False)
     cable_tensions_n: np.ndarray
     cable_shortenings_mm: np.ndarray
-    reaction_forces_n: np.ndarray
+    external_n: np.ndarray = field(repr=False, compare=False)
     iterations: int
     residual_history_n: tuple[float, ...] = field(default=())
+
+    @cached_property
+    def positions_mm(self) -> np.ndarray:
+        return self.state.positions_mm
+
+    @cached_property
+    def reaction_forces_n(self) -> np.ndarray:
+        return self.state.reactions(self.external_n, self.cable_tensions_n)
+
+    def __getstate__(self) -> dict:
+        # a pickle carries the node positions and reactions, not the model the state
+        # belongs to
+        return {**self.__dict__, "positions_mm": self.positions_mm,
+                "reaction_forces_n": self.reaction_forces_n, "state": None}
 
 
 def external_forces(model: FEModel, loads: PointLoads | None) -> np.ndarray:
@@ -87,8 +108,12 @@ def solve_equilibrium(
     loads: PointLoads | None = None,
     start_mm: np.ndarray | None = None,
     settings: SolverSettings = SolverSettings(),
+    start_state: State | None = None,
 ) -> Equilibrium:
-    """Deformed configuration where elastic, applied and cable forces balance.
+    """Deformed configuration where elastic, applied and cable forces balance, from node
+    positions start_mm (n, 3), or an earlier solve's state (Equilibrium.state: a reduced
+    model then needs no projection of positions on its basis), or else the model's own start
+    for the inputs (fem.coordinates: rest, or a reduced model's nearest training equilibrium).
 
     Raises SolverError when Newton's method does not converge in settings.max_iterations.
     """
@@ -96,8 +121,11 @@ def solve_equilibrium(
         raise SolverError(
             f"{len(inputs.values)} actuation values given for {len(model.cables)} cables"
         )
+    if start_mm is not None and start_state is not None:
+        raise ValueError("give start_mm or start_state, not both")
     space = model.coordinates
-    state = space.start(inputs) if start_mm is None else space.state(start_mm)
+    state = (start_state if start_state is not None
+             else space.start(inputs) if start_mm is None else space.state(start_mm))
     tolerance = (space.step_tolerance_mm if settings.step_tolerance_mm is None
                  else settings.step_tolerance_mm)
     external = external_forces(model, loads)
@@ -150,14 +178,12 @@ def solve_equilibrium(
             f"static solve did not converge in {settings.max_iterations} Newton iterations "
             f"(force residual {history[-1]:.3g} N); reduce the load or refine the mesh"
         )
-    positions = state.positions_mm
-    space.check_solution(positions)  # a reduced model warns beyond its training's shapes
-    cable_forces = (model.cable_jacobian(positions).T @ tensions).reshape(-1, 3)
+    space.check_solution(state)  # a reduced model warns beyond its training's shapes
     return Equilibrium(
-        positions_mm=positions,
+        state=state,
         cable_tensions_n=tensions,
         cable_shortenings_mm=current.shortenings,
-        reaction_forces_n=space.reactions(positions, external + cable_forces),
+        external_n=external,
         iterations=len(history),
         residual_history_n=tuple(history),
     )

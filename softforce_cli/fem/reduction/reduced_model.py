@@ -148,20 +148,18 @@ class ReducedModel:
     def coordinates(self) -> ReducedCoordinates:
         return ReducedCoordinates(self)
 
-    def check_solution(self, positions_mm: np.ndarray) -> None:
-        """Warn (ReducedModelWarning) when a solution (n, 3) deforms the body further than
-        every training equilibrium did (RMS node displacement from rest): its shape is then
+    def check_solution(self, moved_mm: float) -> None:
+        """Warn (ReducedModelWarning) when a solution deforms the body further than every
+        training equilibrium did, moved_mm its RMS node displacement from rest: its shape is then
         an extrapolation of the basis. The Diamond's equilibria reach 15.7 mm; the bench's two
         contacts of 0.4 N fold the full model 20.8 mm, and the reduced answer, 5.8 mm RMS off,
         15.7 mm: an extrapolating basis is stiff, so its own deformation understates how far
         outside it is, and no margin is allowed (the bench's 0.25 N probe, 10.4 mm, is 0.28
         mm off)."""
         box = self.reduction.box
-        moved = float(np.sqrt(np.mean(np.sum((positions_mm - self.rest_nodes_mm) ** 2,
-                                             axis=1))))
-        if moved > box.max_displacement_mm:  # False for NaN (a file from before)
+        if moved_mm > box.max_displacement_mm:  # False for NaN (a file from before)
             warnings.warn(ReducedModelWarning(
-                f"the reduced model's solution moves the body {moved:.1f} mm RMS, beyond its "
+                f"the reduced model's solution moves the body {moved_mm:.1f} mm RMS, beyond its "
                 f"training's equilibria ({box.max_displacement_mm:.1f} mm at most): its error "
                 f"there is not bounded ({self._error_scale()}); check it with the full model "
                 "or retrain with larger forces"), stacklevel=3)
@@ -264,6 +262,7 @@ class ReducedCoordinates:
         supports = np.flatnonzero(clamped.any(axis=1) & ~clamped.all(axis=1))
         self.support_elements = supports
         self.support_dofs = full.element_dofs[supports]
+        self.support_nodes = np.unique(full.tets[supports])
         # projected once: reading V (3n, r) costs more than the whole hyper-reduced update
         self.gravity = self.basis.T @ full.gravity_forces_n.ravel()
         self._node_rows: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
@@ -335,10 +334,15 @@ class ReducedCoordinates:
     @on_one_blas_thread
     def _cable_terms(self, nodes_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Shortenings (a,) mm and rows H V (a, r) from the cables' nodes' positions (m, 3)."""
+        shortenings, rows = self._cable_rows(nodes_mm)
+        return shortenings, rows @ self.cable_basis
+
+    def _cable_rows(self, nodes_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Shortenings (a,) mm and rows H (a, 3m) over the cables' nodes (positions (m, 3))."""
         cables, m = self.local_cables, len(nodes_mm)
         shortenings = np.array([cable.shortening(nodes_mm) for cable in cables])
         rows = np.array([cable.jacobian_row(nodes_mm, m) for cable in cables])
-        return shortenings, rows.reshape(len(cables), 3 * m) @ self.cable_basis
+        return shortenings, rows.reshape(len(cables), 3 * m)
 
     @on_one_blas_thread
     def _forces(self, stress: np.ndarray) -> np.ndarray:
@@ -387,26 +391,9 @@ class ReducedCoordinates:
     def check_load(self, inputs: CableInputs, external_n: np.ndarray) -> None:
         self.model.check_load(inputs, external_n)
 
-    def check_solution(self, positions_mm: np.ndarray) -> None:
-        self.model.check_solution(positions_mm)
-
-    def reactions(self, positions_mm: np.ndarray, external_n: np.ndarray) -> np.ndarray:
-        """The elastic forces on the clamped nodes, from the elements that touch them, shifted
-        so that the supports hold exactly the applied loads' resultant.
-
-        The Galerkin equilibrium holds in the basis' span only, so the free nodes next to the
-        supports keep small residual forces; the body's internal forces sum to zero, so the
-        exact total reaction is -(sum of external forces) for any configuration. The shift is
-        shared by the clamped nodes' lumped masses (their tributary volumes).
-        """
-        fixed = self.full.fixed_nodes
-        _, forces, _ = self.full.element_terms(positions_mm, self.support_elements, False)
-        internal = assemble_vector(forces, self.support_dofs, 3 * self.full.node_count)
-        local = -(external_n - internal.reshape(-1, 3))[fixed]
-        missing = -external_n.sum(axis=0) - local.sum(axis=0)
-        masses = self.full.node_masses_kg[fixed]
-        share = masses / masses.sum() if masses.sum() > 0 else np.full(len(fixed), 1 / len(fixed))
-        return local + share[:, None] * missing
+    def check_solution(self, state: ReducedState) -> None:
+        # V is orthonormal: the RMS node displacement |V q| / sqrt(n) needs no lift
+        self.model.check_solution(float(np.linalg.norm(state.q)) / np.sqrt(self.full.node_count))
 
 
 class ReducedState:
@@ -463,3 +450,28 @@ class ReducedState:
             return self.positions_mm[nodes]
         rest, rows = self.space.node_rows(nodes)
         return rest + (rows @ self.q).reshape(-1, 3)
+
+    def reactions(self, external_n: np.ndarray, tensions_n: np.ndarray) -> np.ndarray:
+        """The elastic forces on the clamped nodes, from the elements that touch them, shifted
+        so that the supports hold exactly the applied loads' resultant (the dead loads and the
+        cables' pull). Only the support elements' and the cables' nodes are formed.
+
+        The Galerkin equilibrium holds in the basis' span only, so the free nodes next to the
+        supports keep small residual forces; the body's internal forces sum to zero, so the
+        exact total reaction is -(sum of external forces) for any configuration. The shift is
+        shared by the clamped nodes' lumped masses (their tributary volumes).
+        """
+        space, full = self.space, self.space.full
+        fixed = full.fixed_nodes
+        loads = np.array(external_n, dtype=float)
+        _, rows = space._cable_rows(self.cable_nodes_mm)
+        loads[space.cable_nodes] += (rows.T @ tensions_n).reshape(-1, 3)
+        positions = space.rest.copy()
+        positions[space.support_nodes] = self.nodes_mm(space.support_nodes)
+        _, forces, _ = full.element_terms(positions, space.support_elements, False)
+        internal = assemble_vector(forces, space.support_dofs, 3 * full.node_count)
+        local = -(loads - internal.reshape(-1, 3))[fixed]
+        missing = -loads.sum(axis=0) - local.sum(axis=0)
+        masses = full.node_masses_kg[fixed]
+        share = masses / masses.sum() if masses.sum() > 0 else np.full(len(fixed), 1 / len(fixed))
+        return local + share[:, None] * missing
