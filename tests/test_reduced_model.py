@@ -415,10 +415,11 @@ def test_every_point_at_unit_weight_is_the_galerkin_projection(beam, element):
         assert np.linalg.norm(tangent - projected) <= tolerance * np.linalg.norm(projected)
 
 
-@pytest.mark.parametrize("law", ["corotational", "neo-hookean"])
+@pytest.mark.parametrize("law", ["corotational", "neo-hookean", "linear"])
 def test_law_tangent_factors_are_its_tangent(law):
     """shift I + sum_j d_j z_j z_j^T is the law's tangent for every part of it, also for
-    compressed, sheared and inverted points."""
+    compressed, sheared and inverted points; an evaluation's energy and stress, formed
+    before the factors from the same polar decomposition, are the law's own."""
     rng = np.random.default_rng(3)
     F = np.eye(3) + 0.3 * rng.standard_normal((60, 3, 3))
     F[:20] *= 0.6
@@ -429,12 +430,18 @@ def test_law_tangent_factors_are_its_tangent(law):
         same_stress, factors = material.stress_and_tangent_factors(F, part)
         tangent = tangent.reshape(-1, 9, 9)
         assert np.array_equal(stress, same_stress, equal_nan=True)
+        evaluation = material.evaluate(F, part)
+        energy, plain_stress = material.energy_and_stress(F, part)
+        assert np.array_equal(evaluation.energy, energy, equal_nan=True)
+        assert np.array_equal(evaluation.stress, plain_stress, equal_nan=True)
+        np.testing.assert_array_equal(evaluation.factors.dense(), factors.dense())
         # a Neo-Hookean point with det F <= 0 has NaN stress and tangent, and NaN factors
         finite = np.isfinite(tangent).all(axis=(1, 2))
         assert finite.sum() >= 50 and np.isnan(factors.dense()[~finite]).all()
         error = np.abs(factors.dense() - tangent)[finite].max()
         assert error <= 1e-13 * np.abs(tangent[finite]).max()
-        assert (np.linalg.eigvalsh(tangent[finite])[:, 0] < 0).any()  # indefinite ones too
+        if law != "linear":  # the linear law's tangent is constant and positive
+            assert (np.linalg.eigvalsh(tangent[finite])[:, 0] < 0).any()  # indefinite too
     if law == "corotational":
         assert factors.rows.shape[1] == 4  # 2 mu I + rank 4
 

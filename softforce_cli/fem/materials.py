@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -91,15 +92,47 @@ class Material:
         """P (m, 3, 3) MPa and the tangent A as shift I + sum_j d_j z_j z_j^T
         (TangentFactors) at F (m, 3, 3): the corotational law's has 4 terms past its shift
         2 mu, the other laws' are A's 9 eigenpairs."""
+        evaluation = self.evaluate(F, part)
+        return evaluation.stress, evaluation.factors
+
+    def evaluate(self, F: np.ndarray, part: str = "all") -> LawEvaluation:
+        """The law at F (m, 3, 3): energy density and P now, the tangent's factors when
+        first asked for (stress_and_tangent_factors), from the same polar decomposition."""
         lam, mu = self._lame_of(part)
         if self.law == "corotational":
-            return _corotational_factors(F, lam, mu)
-        _, stress, tangent = _LAWS[self.law](F, lam, mu, True)
-        # an inverted Neo-Hookean point has a NaN tangent (the solver backtracks): keep NaN
-        finite = np.isfinite(tangent).all(axis=(1, 2))
-        values, vectors = np.full((len(F), 9), np.nan), np.full((len(F), 9, 9), np.nan)
-        values[finite], vectors[finite] = np.linalg.eigh(tangent[finite])
-        return stress, TangentFactors(np.zeros(len(F)), vectors.transpose(0, 2, 1), values)
+            R, S, trace, energy, stress = _corotational_stress(F, lam, mu)
+            return LawEvaluation(energy, stress,
+                                 lambda: _corotational_factors(R, S, trace, lam, mu))
+        law = _LAWS[self.law]
+        energy, stress, _ = law(F, lam, mu, False)
+        return LawEvaluation(energy, stress, lambda: _eigen_factors(law(F, lam, mu, True)[2]))
+
+
+class LawEvaluation:
+    """A law at some deformation gradients: energy density (m,) MPa and P (m, 3, 3) MPa,
+    and the tangent's factors (TangentFactors), formed when first asked for. A reduced
+    static solve evaluates every configuration it tries and takes the tangent at those it
+    steps from: the corotational law's polar decomposition, its costliest part, is then
+    computed once per configuration."""
+
+    def __init__(self, energy: np.ndarray, stress: np.ndarray,
+                 factors: Callable[[], TangentFactors]) -> None:
+        self.energy = energy
+        self.stress = stress
+        self._form_factors = factors
+
+    @cached_property
+    def factors(self) -> TangentFactors:
+        return self._form_factors()
+
+
+def _eigen_factors(tangent: np.ndarray) -> TangentFactors:
+    """A (m, 9, 9) as its 9 eigenpairs (no shift)."""
+    # an inverted Neo-Hookean point has a NaN tangent (the solver backtracks): keep NaN
+    finite = np.isfinite(tangent).all(axis=(1, 2))
+    values, vectors = np.full((len(tangent), 9), np.nan), np.full((len(tangent), 9, 9), np.nan)
+    values[finite], vectors[finite] = np.linalg.eigh(tangent[finite])
+    return TangentFactors(np.zeros(len(tangent)), vectors.transpose(0, 2, 1), values)
 
 
 @dataclass(frozen=True)
@@ -238,13 +271,13 @@ def _rotation_terms(R, S, trace):
     return coupling_inv, left
 
 
-def _corotational_factors(F, lam, mu):
-    """(P (m, 3, 3), TangentFactors) of the corotational law: its tangent is
-    2 mu I + (lam tr - 2 mu) L M^-1 L^T + lam vec R vec R^T (_corotational's three terms),
-    and with M^-1 = U D U^T (U unit lower triangular) the factors are 2 mu, the columns of
-    L U with coefficients (lam tr - 2 mu) D, and vec R with lam."""
-    m = len(F)
-    R, S, trace, _, stress = _corotational_stress(F, lam, mu)
+def _corotational_factors(R, S, trace, lam, mu):
+    """TangentFactors of the corotational law at polar factors R, S (m, 3, 3) with
+    trace = tr(S - I) (m,): its tangent is 2 mu I + (lam tr - 2 mu) L M^-1 L^T
+    + lam vec R vec R^T (_corotational's three terms), and with M^-1 = U D U^T (U unit lower
+    triangular) the factors are 2 mu, the columns of L U with coefficients
+    (lam tr - 2 mu) D, and vec R with lam."""
+    m = len(R)
     coupling_inv, left = _rotation_terms(R, S, trace)
     unit, diagonal = _ldl3(coupling_inv)
     rows = np.empty((m, 4, 9))
@@ -253,7 +286,7 @@ def _corotational_factors(F, lam, mu):
     coefficients = np.empty((m, 4))
     coefficients[:, :3] = (lam * trace - 2 * mu)[:, None] * diagonal
     coefficients[:, 3] = lam
-    return stress, TangentFactors(np.full(m, 2 * mu), rows, coefficients)
+    return TangentFactors(np.full(m, 2 * mu), rows, coefficients)
 
 
 def _ldl3(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

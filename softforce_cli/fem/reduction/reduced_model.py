@@ -34,6 +34,7 @@ import scipy.sparse as sp
 from softforce_cli.fem.assembly import assemble_vector
 from softforce_cli.fem.cables import CableInputs
 from softforce_cli.fem.element import gradient_operators
+from softforce_cli.fem.materials import LawEvaluation
 from softforce_cli.fem.model import FEModel
 from softforce_cli.fem.reduction.dense import DenseFactorization
 from softforce_cli.fem.reduction.ecsw import point_operators
@@ -350,39 +351,41 @@ class ReducedCoordinates:
         return self.stacked_t @ (self.point_weights * stress.reshape(-1, 9)).ravel()
 
     def energy_and_forces(self, positions_mm: np.ndarray) -> tuple[float, np.ndarray]:
-        return self._energy_and_forces(self.gradient_map @ np.ravel(positions_mm))
-
-    @on_one_blas_thread
-    def _energy_and_forces(self, gradients: np.ndarray) -> tuple[float, np.ndarray]:
-        """Energy (mJ) and V^T g (r,) N from vec F (9s,) at the sampled points."""
-        F = gradients.reshape(-1, 3, 3)
-        density, stress = self.full.constitutive_at(F, self.rule_points, with_tangent=False)
-        return float(density @ self.point_weights[:, 0]), self._forces(stress)
+        return self._energy_and_forces(self._law(self.gradient_map @ np.ravel(positions_mm)))
 
     def forces_and_tangent(self, positions_mm: np.ndarray, tensions_n: np.ndarray
                            ) -> tuple[np.ndarray, np.ndarray]:
         positions = np.asarray(positions_mm)
-        stress, tangent = self._stress_and_tangent(self.gradient_map @ positions.ravel(),
-                                                   positions[self.cable_nodes], tensions_n)
-        return self._forces(stress), tangent
+        law = self._law(self.gradient_map @ positions.ravel())
+        return (self._energy_and_forces(law)[1],
+                self._tangent(law, positions[self.cable_nodes], tensions_n))
+
+    def _law(self, gradients: np.ndarray) -> list[tuple[slice, LawEvaluation]]:
+        """The law at the sampled points from vec F (9s,), a slice of points per part."""
+        F = gradients.reshape(-1, 3, 3)
+        return [(where, self.full.material.evaluate(F[where], part))
+                for where, part in self.parts]
 
     @on_one_blas_thread
-    def _stress_and_tangent(self, gradients: np.ndarray, nodes_mm: np.ndarray,
-                            tensions_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """P (s, 3, 3) MPa and K_r (r, r) N/mm from vec F (9s,) at the sampled points, the
-        cables' nodes' positions (m, 3) and their tensions (a,)."""
-        F = gradients.reshape(-1, 3, 3)
-        stress = np.empty_like(F)
-        pieces = []
-        for where, part in self.parts:
-            stress[where], factors = self.full.material.stress_and_tangent_factors(F[where], part)
-            pieces.append((where, factors))
-        tangent_r = self.tangent(pieces)
+    def _energy_and_forces(self, law: list[tuple[slice, LawEvaluation]]
+                           ) -> tuple[float, np.ndarray]:
+        """Energy (mJ) and V^T g (r,) N from the law at the sampled points."""
+        weights = self.point_weights[:, 0]
+        stress = np.concatenate([evaluation.stress for _, evaluation in law])
+        energy = sum(float(evaluation.energy @ weights[where]) for where, evaluation in law)
+        return energy, self._forces(stress)
+
+    @on_one_blas_thread
+    def _tangent(self, law: list[tuple[slice, LawEvaluation]], nodes_mm: np.ndarray,
+                 tensions_n: np.ndarray) -> np.ndarray:
+        """K_r (r, r) N/mm from the law at the sampled points, the cables' nodes' positions
+        (m, 3) and their tensions (a,)."""
+        tangent_r = self.tangent([(where, evaluation.factors) for where, evaluation in law])
         for cable, local, tension in zip(self.local_cables, self.cable_bases, tensions_n,
                                          strict=True):
             if tension != 0.0:
                 tangent_r += local.T @ cable.geometric_stiffness(nodes_mm, tension) @ local
-        return stress, tangent_r
+        return tangent_r
 
     def factorize(self, tangent: np.ndarray, previous: DenseFactorization | None = None
                   ) -> DenseFactorization:
@@ -429,17 +432,19 @@ class ReducedState:
     def moved(self, step: np.ndarray, alpha: float) -> ReducedState:
         return ReducedState(self.space, self.q + alpha * step)
 
+    @cached_property
+    def law(self) -> list[tuple[slice, LawEvaluation]]:
+        """The law at the sampled points (its tangent's factors formed when first asked)."""
+        return self.space._law(self.gradients)
+
     def energy_and_forces(self) -> tuple[float, np.ndarray]:
-        return self.space._energy_and_forces(self.gradients)
+        return self.space._energy_and_forces(self.law)
 
     def tangent(self, tensions_n: np.ndarray) -> np.ndarray:
-        return self.space._stress_and_tangent(self.gradients, self.cable_nodes_mm,
-                                              tensions_n)[1]
+        return self.space._tangent(self.law, self.cable_nodes_mm, tensions_n)
 
     def forces_and_tangent(self, tensions_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        stress, tangent = self.space._stress_and_tangent(self.gradients, self.cable_nodes_mm,
-                                                         tensions_n)
-        return self.space._forces(stress), tangent
+        return self.energy_and_forces()[1], self.tangent(tensions_n)
 
     def cables(self) -> tuple[np.ndarray, np.ndarray]:
         return self.space._cable_terms(self.cable_nodes_mm)
