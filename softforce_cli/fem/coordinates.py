@@ -144,7 +144,6 @@ class Coordinates(Protocol):
         ...
 
 
-
 class FreeDofs:
     """The full model's coordinates: q are the free nodal coordinates (T selects them)."""
 
