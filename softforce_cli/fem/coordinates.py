@@ -12,7 +12,8 @@ fem.statics and fem.compliance are written once against this protocol: residuals
 T^T (f_ext - g(x) + H^T lam), cable rows are H T, and a solution dq lifts to T dq. A static
 solve moves through `State`s, configurations that evaluate forces, tangent and cables from q
 without forming the node positions (a reduced model's lift V q reads all of V, more than
-the rest of an evaluation), and lifts once at the end. A sensing loop holds its
+the rest of an evaluation); its Equilibrium keeps the final State and lifts it when its
+node positions are first read (fem.statics). A sensing loop holds its
 configuration as a State too (estimation.linear_model) and asks it for the few nodes it
 looks at (State.nodes_mm), so a reduced model never lifts there.
 """
