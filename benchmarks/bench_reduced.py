@@ -198,10 +198,11 @@ def run() -> list[BenchRow]:
                          f"r = {info['modes']}, {info['sampled_points']} points; full p2:"
                          " 1.4 Hz, full p1: 31 Hz (docs/locking.md)"))
     (cold_s, cold_iterations), (warm_s, warm_iterations) = static_solves(reduced).values()
-    rows.append(BenchRow("Reduced static solve from rest, cables 5,5,0,0 mm + gravity", cold_s,
-                         20, "< 20 ms", f"{cold_s * 1e3:.0f} ms",
-                         f"{cold_iterations} Newton iterations; given no start (the nearest "
-                         "training equilibrium moved to first order)"))
+    rows.append(BenchRow("Reduced static solve given no start, cables 5,5,0,0 mm + gravity",
+                         cold_s, 20, "< 20 ms", f"{cold_s * 1e3:.0f} ms",
+                         f"{cold_iterations} Newton iterations from the nearest training "
+                         "equilibrium moved to first order (the row read 'from rest' until "
+                         "2026-11-29, when solves began there)"))
     rows.append(BenchRow("Reduced static solve from a frame 0.5 mm away (tracking)", warm_s, 20,
                          "< 20 ms", f"{warm_s * 1e3:.0f} ms",
                          f"{warm_iterations} Newton iterations; from the earlier solve's "
@@ -229,7 +230,7 @@ def static_solves(robot: Robot) -> dict[str, tuple[float, int]]:
     model = robot.fe_model
     inputs = robot.cable_inputs(ACTUATION)
     near = solve_equilibrium(model, robot.cable_inputs(ACTUATION - [0.5, 0.0, 0.0, 0.0]))
-    starts = {"from rest": None, "from a frame 0.5 mm away": near.state}
+    starts = {"given no start": None, "from a frame 0.5 mm away": near.state}
     return {name: (median_time(lambda start=start: solve_equilibrium(
                        model, inputs, start_state=start), repeats=20),
                    solve_equilibrium(model, inputs, start_state=start).iterations)
