@@ -236,7 +236,7 @@ def static_solves(robot: Robot) -> dict[str, tuple[float, int]]:
 
     def track() -> Equilibrium:
         targets.reverse()
-        last[0] = solve_equilibrium(model, targets[0], start_state=last[0].state)
+        last[0] = solve_equilibrium(model, targets[0], start=last[0])
         return last[0]
 
     return {"given no start": (median_time(lambda: solve_equilibrium(model, targets[1]),

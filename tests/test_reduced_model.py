@@ -585,12 +585,15 @@ def test_start_at_an_equilibrium_is_converged_at_once(beam, reduced):
 
 
 @pytest.mark.parametrize("reduced", [False, True])
-def test_an_equilibrium_forms_positions_and_reactions_when_first_read(beam, reduced):
+def test_an_equilibrium_forms_positions_and_reactions_when_first_read(beam, reduced,
+                                                                      monkeypatch):
     """A solve returns its state: a reduced solve never lifts its coordinates to the nodes,
     and the node positions and support reactions are formed when first read. The reactions
     balance every load exactly and are the elastic forces the full model finds at the lifted
-    positions, up to the Galerkin residual's share; a pickle carries both without the model;
-    the state starts a next solve as its positions do."""
+    positions, up to the Galerkin residual's share; a pickle carries both without the model.
+    A next solve from it starts at its state and takes its first Newton step on its last
+    tangent: one tangent fewer than from its positions, for the same answer, and the
+    earlier solve's factorisation left as it was."""
     robot, reduction, _ = beam
     model = ReducedModel(robot.full_fe_model, reduction) if reduced else robot.full_fe_model
     inputs = robot.cable_inputs(np.array([4.0, 3.0]))
@@ -612,12 +615,24 @@ def test_an_equilibrium_forms_positions_and_reactions_when_first_read(beam, redu
     np.testing.assert_array_equal(carried.positions_mm, positions)
     np.testing.assert_array_equal(carried.reaction_forces_n, reactions)
     moved = robot.cable_inputs(np.array([4.5, 3.0]))
-    from_state = solve_equilibrium(model, moved, loads, start_state=solved.state)
+    probe = np.random.default_rng(0).normal(size=model.coordinates.size)
+    before = solved.tangent.factorization.solve(probe)
+    tangents = []
+    state_type = type(solved.state)
+    plain_tangent_of = state_type.tangent
+    monkeypatch.setattr(state_type, "tangent",
+                        lambda self, tensions: tangents.append(1) or plain_tangent_of(self,
+                                                                                   tensions))
+    from_previous = solve_equilibrium(model, moved, loads, start=solved)
+    chained = len(tangents)
     from_positions = solve_equilibrium(model, moved, loads, start_mm=positions)
-    assert from_state.iterations == from_positions.iterations
-    np.testing.assert_allclose(from_state.positions_mm, from_positions.positions_mm, atol=1e-9)
+    assert chained == len(tangents) - chained - 1 and chained >= 1
+    assert from_previous.iterations == from_positions.iterations
+    np.testing.assert_allclose(from_previous.positions_mm, from_positions.positions_mm,
+                               atol=1e-6)
+    np.testing.assert_array_equal(solved.tangent.factorization.solve(probe), before)
     with pytest.raises(ValueError, match="not both"):
-        solve_equilibrium(model, moved, start_mm=positions, start_state=solved.state)
+        solve_equilibrium(model, moved, start_mm=positions, start=solved)
 
 
 @pytest.mark.parametrize("reduced", [False, True])

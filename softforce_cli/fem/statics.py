@@ -16,7 +16,7 @@ import scipy.optimize
 from softforce_cli.errors import SolverError
 from softforce_cli.fem.attachment import Attachment
 from softforce_cli.fem.cables import CableInputs
-from softforce_cli.fem.coordinates import State
+from softforce_cli.fem.coordinates import Factor, State
 from softforce_cli.fem.model import FEModel
 
 
@@ -56,11 +56,22 @@ class SolverSettings:
 
 
 @dataclass(frozen=True)
+class NewtonTangent:
+    """The factorised tangent of a solve's last Newton step, taken one small step before its
+    answer, and its mean diagonal (the line search's scale for the cables' gaps)."""
+
+    factorization: Factor
+    stiffness_scale: float
+
+
+@dataclass(frozen=True)
 class Equilibrium:
     """A static equilibrium.
 
     state                  : the configuration in the model's coordinates (fem.coordinates),
-                             where a next solve can start (solve_equilibrium's start_state).
+                             where a next solve can start (solve_equilibrium's start).
+    tangent                : its last Newton step's tangent (None if it took none): a next
+                             solve from it takes its first step with it.
     positions_mm           : (n, 3) deformed node positions in the robot frame, formed from
                              the state when first read (a reduced model's lift reads all of
                              its basis: 2.6 ms for the Diamond's 200 modes).
@@ -76,6 +87,7 @@ class Equilibrium:
     cable_tensions_n: np.ndarray
     cable_shortenings_mm: np.ndarray
     external_n: np.ndarray = field(repr=False, compare=False)
+    tangent: NewtonTangent | None = field(repr=False, compare=False)
     iterations: int
     residual_history_n: tuple[float, ...] = field(default=())
 
@@ -91,7 +103,7 @@ class Equilibrium:
         # a pickle carries the node positions and reactions, not the model the state
         # belongs to
         return {**self.__dict__, "positions_mm": self.positions_mm,
-                "reaction_forces_n": self.reaction_forces_n, "state": None}
+                "reaction_forces_n": self.reaction_forces_n, "state": None, "tangent": None}
 
 
 def external_forces(model: FEModel, loads: PointLoads | None) -> np.ndarray:
@@ -108,12 +120,14 @@ def solve_equilibrium(
     loads: PointLoads | None = None,
     start_mm: np.ndarray | None = None,
     settings: SolverSettings = SolverSettings(),
-    start_state: State | None = None,
+    start: Equilibrium | None = None,
 ) -> Equilibrium:
     """Deformed configuration where elastic, applied and cable forces balance, from node
-    positions start_mm (n, 3), or an earlier solve's state (Equilibrium.state: a reduced
-    model then needs no projection of positions on its basis), or else the model's own start
-    for the inputs (fem.coordinates: rest, or a reduced model's nearest training equilibrium).
+    positions start_mm (n, 3), or from an earlier solve of the same model (`start`: its
+    state, so that a reduced model needs no projection of positions on its basis, and its
+    last tangent for the first Newton step, a chord step that saves forming the tangent
+    there), or else the model's own start for the inputs (fem.coordinates: rest, or a
+    reduced model's nearest training equilibrium).
 
     Raises SolverError when Newton's method does not converge in settings.max_iterations.
     """
@@ -121,11 +135,12 @@ def solve_equilibrium(
         raise SolverError(
             f"{len(inputs.values)} actuation values given for {len(model.cables)} cables"
         )
-    if start_mm is not None and start_state is not None:
-        raise ValueError("give start_mm or start_state, not both")
+    if start_mm is not None and start is not None:
+        raise ValueError("give start_mm or start, not both")
     space = model.coordinates
-    state = (start_state if start_state is not None
+    state = (start.state if start is not None
              else space.start(inputs) if start_mm is None else space.state(start_mm))
+    last = None if start is None else start.tangent
     tolerance = (space.step_tolerance_mm if settings.step_tolerance_mm is None
                  else settings.step_tolerance_mm)
     external = external_forces(model, loads)
@@ -138,8 +153,9 @@ def solve_equilibrium(
     # trial, so that no configuration is evaluated twice
     current = _Evaluation.at(state)
     tensions = _held_tensions(current, applied, controlled, tensions)
-    stiffness_scale = None
-    factor = None
+    stiffness_scale = None if last is None else last.stiffness_scale
+    factor = None if last is None else last.factorization
+    chord = last is not None  # the first step on the earlier solve's tangent
     history: list[float] = []
     full_steps: list[float] = []  # the largest coordinate of each full step in a row
     for _ in range(settings.max_iterations):
@@ -152,10 +168,15 @@ def solve_equilibrium(
         gap = np.where(slack, violation, np.abs(violation))
         if history[-1] <= settings.force_tolerance_n and np.all(gap < 1e-9):
             break
-        tangent = state.tangent(tensions)
-        if stiffness_scale is None:
-            stiffness_scale = float(np.mean(tangent.diagonal()))
-        factor = space.factorize(tangent, factor)
+        if chord:
+            chord = False
+        else:
+            tangent = state.tangent(tensions)
+            if stiffness_scale is None:
+                stiffness_scale = float(np.mean(tangent.diagonal()))
+            # a fresh factorisation object: an earlier solve's, started from, stays its own
+            reused = last is not None and factor is last.factorization
+            factor = space.factorize(tangent, None if reused else factor)
         base = applied - current.internal + jacobian[~controlled].T @ tensions[~controlled]
         # the step and the held cables' responses K^-1 H_d^T, solved together
         pulled = jacobian[controlled]
@@ -184,6 +205,7 @@ def solve_equilibrium(
         cable_tensions_n=tensions,
         cable_shortenings_mm=current.shortenings,
         external_n=external,
+        tangent=None if factor is None else NewtonTangent(factor, stiffness_scale),
         iterations=len(history),
         residual_history_n=tuple(history),
     )
