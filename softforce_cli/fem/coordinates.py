@@ -107,6 +107,11 @@ class Coordinates(Protocol):
     # A static solve ends when its Newton step's largest coordinate is below this (mm),
     # unless its settings ask for another tolerance (fem.statics.SolverSettings)
     step_tolerance_mm: float
+    # Whether a static solution keeps its last factorised tangent, for a next solve that
+    # continues from it (fem.statics.Equilibrium.tangent): a reduced model's dense LU is
+    # r x r; a full P2 model's sparse factor is 50-120 MB (the 47,520-dof truth Diamond),
+    # which every cached solution would hold (simulate caches its truth states).
+    keeps_tangent: bool
 
     def state(self, positions_mm: np.ndarray | None = None) -> State:
         """The configuration of the form x_0 + T q nearest to positions (n, 3) (None: the
@@ -176,6 +181,7 @@ class FreeDofs:
         return forces.ravel()[self.free]
 
     step_tolerance_mm = 1e-7  # far below any camera's noise (D415: ~1 mm)
+    keeps_tangent = False  # a sparse factor is large (Coordinates.keeps_tangent)
 
     def state(self, positions_mm: np.ndarray | None = None) -> NodalState:
         start = self.model.rest_nodes_mm if positions_mm is None else positions_mm

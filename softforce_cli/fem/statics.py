@@ -70,8 +70,9 @@ class Equilibrium:
 
     state                  : the configuration in the model's coordinates (fem.coordinates),
                              where a next solve can start (solve_equilibrium's start).
-    tangent                : its last Newton step's tangent (None if it took none): a next
-                             solve from it takes its first step with it.
+    tangent                : its last Newton step's tangent, where the coordinates keep it
+                             (a reduced model's; None for the full model or without a
+                             step): a next solve from it takes its first step with it.
     positions_mm           : (n, 3) deformed node positions in the robot frame, formed from
                              the state when first read (a reduced model's lift reads all of
                              its basis: 2.6 ms for the Diamond's 200 modes).
@@ -205,7 +206,8 @@ def solve_equilibrium(
         cable_tensions_n=tensions,
         cable_shortenings_mm=current.shortenings,
         external_n=external,
-        tangent=None if factor is None else NewtonTangent(factor, stiffness_scale),
+        tangent=(NewtonTangent(factor, stiffness_scale)
+                 if factor is not None and space.keeps_tangent else None),
         iterations=len(history),
         residual_history_n=tuple(history),
     )

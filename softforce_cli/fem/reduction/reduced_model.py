@@ -204,6 +204,7 @@ class ReducedCoordinates:
     """fem.coordinates protocol for x = x_rest + V q with hyper-reduced element sums."""
 
     step_tolerance_mm = STEP_TOLERANCE_MM
+    keeps_tangent = True  # an r x r LU (Coordinates.keeps_tangent)
 
     def __init__(self, model: ReducedModel) -> None:
         full, reduction = model.full, model.reduction
