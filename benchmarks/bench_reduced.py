@@ -315,7 +315,7 @@ def tangent_study(repeats: int = 40) -> None:
         return stacked.T @ weighted.reshape(-1, r)
 
     def factored(space: ReducedCoordinates) -> Callable[[], np.ndarray]:
-        pieces = [(where, model.full.material.stress_and_tangent_factors(F[where], part)[1])
+        pieces = [(where, model.full.material.evaluate(F[where], part).factors)
                   for where, part in space.parts]
         return lambda: space.tangent(pieces)
 
@@ -323,7 +323,7 @@ def tangent_study(repeats: int = 40) -> None:
         "law at the points, dense A_p (before)": lambda: model.full.constitutive_at(
             F, fast.rule_points, with_tangent=True),
         "law at the points, factored A_p": lambda: [
-            model.full.material.stress_and_tangent_factors(F[where], part)
+            model.full.material.evaluate(F[where], part).factors
             for where, part in fast.parts],
         "K_r plain sum, float64, (9s, r) operator transposed (before)": plain_before,
         "K_r plain sum, float64, (r, 9s) operator": lambda: plain_tangent(operators, weights,
@@ -383,7 +383,7 @@ def solve_study(repeats: int = 30) -> None:
         "solve from rest": lambda: solve_equilibrium(model, inputs),
         "tangent: law with factors, K_r, cables' stiffness": lambda: state.tangent(tensions),
         "  of which the law with factors": lambda: [
-            model.full.material.stress_and_tangent_factors(F[where], part)
+            model.full.material.evaluate(F[where], part).factors
             for where, part in space.parts],
         "  of which the cables' geometric stiffness": lambda: [
             cable.geometric_stiffness(state.cable_nodes_mm, 1.0)

@@ -427,14 +427,13 @@ def test_law_tangent_factors_are_its_tangent(law):
     material = Material(law, 0.18, 0.45)
     for part in ("all", "mu", "lambda"):
         stress, tangent = material.stress_and_tangent(F, part)
-        same_stress, factors = material.stress_and_tangent_factors(F, part)
         tangent = tangent.reshape(-1, 9, 9)
-        assert np.array_equal(stress, same_stress, equal_nan=True)
         evaluation = material.evaluate(F, part)
+        factors = evaluation.factors
         energy, plain_stress = material.energy_and_stress(F, part)
         assert np.array_equal(evaluation.energy, energy, equal_nan=True)
         assert np.array_equal(evaluation.stress, plain_stress, equal_nan=True)
-        np.testing.assert_array_equal(evaluation.factors.dense(), factors.dense())
+        assert np.array_equal(stress, plain_stress, equal_nan=True)
         # a Neo-Hookean point with det F <= 0 has NaN stress and tangent, and NaN factors
         finite = np.isfinite(tangent).all(axis=(1, 2))
         assert finite.sum() >= 50 and np.isnan(factors.dense()[~finite]).all()
@@ -477,7 +476,7 @@ def test_factored_reduced_tangent_is_the_plain_sum(beam, element, law, shape):
     if shape == "squeezed":
         assert (np.linalg.eigvalsh(tangents)[:, 0] < 0).mean() > 0.3
     elif law == "corotational":
-        negative = full.material.stress_and_tangent_factors(F, "all")[1].coefficients < 0
+        negative = full.material.evaluate(F, "all").factors.coefficients < 0
         varying = negative.any(axis=0) & ~negative.all(axis=0)
         assert varying[:3].all() and not negative[:, 3].any()
 

@@ -87,17 +87,11 @@ class Material:
         _, stress, tangent = _LAWS[self.law](F, *self._lame_of(part), True)
         return stress, tangent.reshape(len(F), 3, 3, 3, 3)
 
-    def stress_and_tangent_factors(self, F: np.ndarray, part: str = "all"
-                                   ) -> tuple[np.ndarray, TangentFactors]:
-        """P (m, 3, 3) MPa and the tangent A as shift I + sum_j d_j z_j z_j^T
-        (TangentFactors) at F (m, 3, 3): the corotational law's has 4 terms past its shift
-        2 mu, the other laws' are A's 9 eigenpairs."""
-        evaluation = self.evaluate(F, part)
-        return evaluation.stress, evaluation.factors
-
     def evaluate(self, F: np.ndarray, part: str = "all") -> LawEvaluation:
-        """The law at F (m, 3, 3): energy density and P now, the tangent's factors when
-        first asked for (stress_and_tangent_factors), from the same polar decomposition."""
+        """The law at F (m, 3, 3): energy density and P now, and the tangent A as
+        shift I + sum_j d_j z_j z_j^T (TangentFactors) when first asked for, from the same
+        polar decomposition: the corotational law's has 4 terms past its shift 2 mu, the
+        other laws' are A's 9 eigenpairs."""
         lam, mu = self._lame_of(part)
         if self.law == "corotational":
             R, S, trace, energy, stress = _corotational_stress(F, lam, mu)

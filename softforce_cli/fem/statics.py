@@ -156,7 +156,7 @@ def solve_equilibrium(
     tensions = _held_tensions(current, applied, controlled, tensions)
     stiffness_scale = None if last is None else last.stiffness_scale
     factor = None if last is None else last.factorization
-    chord = last is not None  # the first step on the earlier solve's tangent
+    chord = last is not None  # the first step on the earlier solve's tangent, not a new one
     history: list[float] = []
     full_steps: list[float] = []  # the largest coordinate of each full step in a row
     for _ in range(settings.max_iterations):
@@ -169,15 +169,14 @@ def solve_equilibrium(
         gap = np.where(slack, violation, np.abs(violation))
         if history[-1] <= settings.force_tolerance_n and np.all(gap < 1e-9):
             break
-        if chord:
-            chord = False
-        else:
+        if not chord:
             tangent = state.tangent(tensions)
             if stiffness_scale is None:
                 stiffness_scale = float(np.mean(tangent.diagonal()))
             # a fresh factorisation object: an earlier solve's, started from, stays its own
             reused = last is not None and factor is last.factorization
             factor = space.factorize(tangent, None if reused else factor)
+        chord = False
         base = applied - current.internal + jacobian[~controlled].T @ tensions[~controlled]
         # the step and the held cables' responses K^-1 H_d^T, solved together
         pulled = jacobian[controlled]

@@ -81,7 +81,7 @@ def start_library(model: ReducedModel, controls: tuple[str, ...], actuations: np
     for values, positions in zip(actuations, positions_mm, strict=True):
         inputs = CableInputs(controls, values)
         equilibrium = solve_equilibrium(model, inputs, start_mm=positions)
-        state = space.state(equilibrium.positions_mm)
+        state = equilibrium.state
         factor = space.factorize(state.tangent(equilibrium.cable_tensions_n))
         _, rows = state.cables()
         responses = factor.solve(rows.T)
