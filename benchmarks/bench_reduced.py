@@ -384,6 +384,9 @@ def solve_study(repeats: int = 30) -> None:
     forces = force_rows(features.subset(contacts), reduced.feature_normals[contacts],
                         model.node_count)
 
+    def fresh():
+        return state.moved(state.q, 0.0)
+
     def rows_before() -> None:
         actuators = model.cable_jacobian(x)
         space.project_rows(sp.vstack([sp.csr_matrix(actuators), forces]).tocsr())
@@ -395,16 +398,19 @@ def solve_study(repeats: int = 30) -> None:
         np.vstack([projected, space.project_rows(forces)])
 
     timings = interleaved_medians({
-        "solve from rest": lambda: solve_equilibrium(model, inputs),
-        "tangent: law with factors, K_r, cables' stiffness": lambda: state.tangent(tensions),
+        "solve from rest": lambda: solve_equilibrium(model, inputs,
+                                                     start_mm=model.rest_nodes_mm),
+        # each from a fresh state: a state keeps its evaluation of the law
+        "tangent: F, the law with factors, K_r, cables' stiffness": lambda: fresh().tangent(
+            tensions),
         "  of which the law with factors": lambda: [
             model.full.material.evaluate(F[where], part).factors
             for where, part in space.parts],
-        "  of which the cables' geometric stiffness": lambda: [
-            cable.geometric_stiffness(state.cable_nodes_mm, 1.0)
-            for cable in space.local_cables],
-        "energy and forces (law, GEMV)": state.energy_and_forces,
-        "state: F = F_rest + G q, cable nodes": lambda: state.moved(state.q, 0.0),
+        "  of which the cables' geometric stiffness": lambda: space.cable_stiffness(
+            state.cable_nodes_mm, tensions),
+        "energy and forces: F, the law, the GEMV": lambda: fresh().energy_and_forces(),
+        "state: F = F_rest + G q, cable nodes": lambda: (fresh().gradients,
+                                                         fresh().cable_nodes_mm),
         "cables: lengths and rows H V": state.cables,
         "LU": lambda: factor.refactor(tangent),
         "lift V q (once per solve)": lambda: space.lift(state.q),

@@ -9,6 +9,7 @@ the force is lam * d(delta)/dx, so H_a = d(delta)/dx.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -66,32 +67,36 @@ class Cable:
         return np.bincount(self.dofs, weights=values.ravel(), minlength=3 * node_count)
 
     def geometric_stiffness(self, positions_mm: np.ndarray, tension_n: float) -> np.ndarray:
-        """(3 w k, 3 w k) stiffness over `dofs` added by a tension: lam d2(L)/dx2.
+        """(3 w k, 3 w k) stiffness over `dofs` added by a tension: lam d2(L)/dx2, the sum over
+        segments of D_s^T S_s D_s (segment_stiffness S_s, segment_differences D_s)."""
+        differences = self.segment_differences
+        blocks = self.segment_stiffness(positions_mm, tension_n)
+        return (differences.transpose(0, 2, 1) @ (blocks @ differences)).sum(axis=0)
 
-        A taut cable resists sideways motion of its points: each segment contributes
-        lam (I - t t^T) / l on the difference of its end points (the pull point is fixed).
-        """
-        points = self.points(positions_mm)
-        k = len(self.path)
-        local = np.zeros((3 * (k + 1), 3 * (k + 1)))
-        for i in range(k):  # k segments; k is a handful of points
-            segment = points[i + 1] - points[i]
-            length = np.linalg.norm(segment)
-            t = segment / length
-            block = tension_n * (np.eye(3) - np.outer(t, t)) / length
-            a, b = slice(3 * i, 3 * i + 3), slice(3 * i + 3, 3 * i + 6)
-            local[a, a] += block
-            local[b, b] += block
-            local[a, b] -= block
-            local[b, a] -= block
-        # spread (3k, 3wk): point i's coordinate c is sum_a w_ia x_(node a, c)
-        width = self.path.weights.shape[1]
-        spread = np.zeros((k, 3, k, width, 3))
-        for i in range(k):
-            for c in range(3):
-                spread[i, c, i, :, c] = self.path.weights[i]
-        spread = spread.reshape(3 * k, 3 * width * k)
-        return spread.T @ local[: 3 * k, : 3 * k] @ spread
+    def segment_stiffness(self, positions_mm: np.ndarray, tension_n: float) -> np.ndarray:
+        """(k, 3, 3) N/mm, segment_stiffness() of each of its segments (segment i runs from
+        point i to point i + 1, the last to the fixed pull point)."""
+        segments = np.diff(self.points(positions_mm), axis=0)
+        return segment_stiffness(segments, np.full(len(segments), tension_n))
+
+    @cached_property
+    def segment_differences(self) -> np.ndarray:
+        """(k, 3, 3 w k) each segment's end-point difference p_i+1 - p_i as a map of the dofs
+        `dofs` (the pull point is fixed: the last segment's is -p_k)."""
+        k, width = self.path.weights.shape
+        steps = np.eye(k + 1, k)[1:] - np.eye(k + 1, k)[:-1]  # (segments, points)
+        # coordinate c of point i is sum_a w_ia x_(node a of point i, c)
+        per_node = steps[:, :, None] * self.path.weights[None]  # (segment, point, node)
+        return np.einsum("spa,cd->scpad", per_node, np.eye(3)).reshape(k, 3, 3 * width * k)
+
+
+def segment_stiffness(segments_mm: np.ndarray, tensions_n: np.ndarray) -> np.ndarray:
+    """(s, 3, 3) N/mm: lam (I - t t^T) / l for segments (s, 3) mm of tensions (s,) N, on the
+    difference of each segment's end points: a taut cable resists sideways motion of its
+    points."""
+    lengths = np.linalg.norm(segments_mm, axis=1)
+    t = segments_mm / lengths[:, None]
+    return (tensions_n / lengths)[:, None, None] * (np.eye(3) - t[:, :, None] * t[:, None, :])
 
 
 def _segment_directions(points: np.ndarray) -> np.ndarray:

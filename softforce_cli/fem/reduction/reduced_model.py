@@ -32,7 +32,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from softforce_cli.fem.assembly import assemble_vector
-from softforce_cli.fem.cables import CableInputs
+from softforce_cli.fem.cables import CableInputs, segment_stiffness
 from softforce_cli.fem.element import gradient_operators
 from softforce_cli.fem.materials import LawEvaluation
 from softforce_cli.fem.model import FEModel
@@ -259,7 +259,23 @@ class ReducedCoordinates:
             for cable in full.cables]
         self.cable_rest = self.rest[nodes]
         self.cable_basis = self.basis[(3 * nodes[:, None] + np.arange(3)).ravel()]  # (3m, r)
-        self.cable_bases = [self.cable_basis[cable.dofs] for cable in self.local_cables]
+        # every cable's segments at once: their vectors are D x_cables + the pull points (the
+        # last segment of each), their rows on V D V (s, 3, r), and the cables' geometric
+        # stiffness on the basis sum_s (D_s V)^T S_s (D_s V), one small product in all
+        differences = []
+        for cable in self.local_cables:
+            onto_nodes = np.zeros((len(cable.segment_differences), 3, 3 * len(nodes)))
+            np.add.at(onto_nodes, (slice(None), slice(None), cable.dofs),
+                      cable.segment_differences)
+            differences.append(onto_nodes)
+        self.segment_differences = np.concatenate(differences).reshape(-1, 3 * len(nodes))
+        self.segment_pulls = np.concatenate([np.vstack([np.zeros((len(c.path) - 1, 3)),
+                                                        c.pull_point_mm])
+                                             for c in self.local_cables])
+        self.segment_cables = np.concatenate([np.full(len(c.path), i)
+                                              for i, c in enumerate(self.local_cables)])
+        self.segment_rows = (self.segment_differences @ self.cable_basis).reshape(
+            -1, 3, self.size)
         # elements with clamped and free nodes: an element with every node clamped stays at
         # rest and exerts nothing
         clamped = np.isin(full.tets, full.fixed_nodes)
@@ -384,11 +400,18 @@ class ReducedCoordinates:
         """K_r (r, r) N/mm from the law at the sampled points, the cables' nodes' positions
         (m, 3) and their tensions (a,)."""
         tangent_r = self.tangent([(where, evaluation.factors) for where, evaluation in law])
-        for cable, local, tension in zip(self.local_cables, self.cable_bases, tensions_n,
-                                         strict=True):
-            if tension != 0.0:
-                tangent_r += local.T @ cable.geometric_stiffness(nodes_mm, tension) @ local
+        if np.any(tensions_n):
+            tangent_r += self.cable_stiffness(nodes_mm, tensions_n)
         return tangent_r
+
+    def cable_stiffness(self, nodes_mm: np.ndarray, tensions_n: np.ndarray) -> np.ndarray:
+        """(r, r) N/mm, the cables' geometric stiffness on the basis from the cables' nodes'
+        positions (m, 3) and tensions (a,)."""
+        segments = (self.segment_differences @ nodes_mm.ravel()).reshape(-1, 3)
+        blocks = segment_stiffness(segments + self.segment_pulls,
+                                   np.asarray(tensions_n)[self.segment_cables])
+        rows = self.segment_rows
+        return rows.reshape(-1, self.size).T @ (blocks @ rows).reshape(-1, self.size)
 
     def factorize(self, tangent: np.ndarray, previous: DenseFactorization | None = None
                   ) -> DenseFactorization:
