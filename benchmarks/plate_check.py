@@ -1,5 +1,5 @@
 """The plate under the Diamond (support_contact) on the exact model diagnose refits with
-(docs/diagnosis.md, fourteenth run).
+(docs/diagnosis_history.md, fourteenth run).
 
 starts: Newton iterations of the coarse P2 Diamond (Neo-Hookean, as the study's robot file)
 at one state with a plate at each height, started from the nominal equilibrium (the plate

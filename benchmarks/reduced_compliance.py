@@ -1,4 +1,4 @@
-"""Why the reduced P2 model misreads contact forces in sensing (docs/reduced_model.md).
+"""Why the reduced P2 model misread contact forces in sensing (docs/reduced_model_history.md).
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/reduced_compliance.py [--bases] [--soft]
 
@@ -102,7 +102,7 @@ def _row(label: str, errors: list[float], owns: list[float]) -> str:
 
 
 def compare_tangents(probe: Probe, reduced) -> None:
-    """The table of docs/reduced_model.md: exact Galerkin and ECSW tangents."""
+    """The table of docs/reduced_model_history.md ("Why"): exact Galerkin and ECSW tangents."""
     basis = reduced.fe_model.coordinates.basis
     free_basis = probe.space.project(basis)
     galerkin = free_basis.T @ (probe.tangent @ free_basis)

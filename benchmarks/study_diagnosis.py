@@ -8,7 +8,7 @@ estimator's FE states are solved once for the whole study, through diagnose's ca
 by `softforce simulate` on the locking-free P2 truth (its own mesh, Neo-Hookean law). The
 recordings and the results (out/study_diagnosis/results.jsonl, one line per case) are kept:
 a rerun continues where the last stopped. `--table` prints the markdown table of what ran
-(docs/diagnosis.md).
+(docs/diagnosis.md; every run: docs/diagnosis_history.md).
 
     .venv/bin/python benchmarks/study_diagnosis.py [--cases NAME,...] [--seeds 3]
         [--first-seed 1] [--redo] [--recordings-only] [--table] [--markers] [--self]
@@ -99,7 +99,7 @@ CASES: dict[str, tuple] = {
 # a clean recording then differs from its model by the mesh alone. The material cases,
 # {case: the robot file's law}, diagnose the clean case's recordings with another law (the
 # default corotational one sags 0.6 mm more under gravity than the Neo-Hookean body:
-# docs/diagnosis.md, tenth run); a blend concealed in the truth instead would make the truth
+# docs/diagnosis_history.md, tenth run); a blend concealed in the truth instead would make the truth
 # the clean case's.
 TRUTH_LAW = "neo-hookean"
 COARSE_LAW = '[material]\nlaw = "corotational"'  # what the copies of COARSE replace

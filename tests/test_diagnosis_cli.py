@@ -173,7 +173,7 @@ def test_the_default_robots_law_is_named_against_the_neo_hookean_body(tmp_path, 
     assert document["verdict"] == "material_nonlinearity", document["effects"][:3]
     first = document["effects"][0]
     # towards the other law, short of all of it: the coarse mesh is stiffer than the body
-    # and takes the rest (docs/diagnosis.md, tenth run)
+    # and takes the rest (docs/diagnosis_history.md, tenth run)
     assert 0.4 < first["parameters"]["blend"]["value"] < 1.0
     assert first["heldout_rms_after_mm"] <= 0.6 * first["heldout_rms_before_mm"]
 

@@ -54,7 +54,7 @@ REFIT_SHARE = 0.25
 # Absolute systematic residual (mm) beyond which the static mismatch is structured: the
 # locking-free P2 model of the coarse Diamond leaves 0.38 mm RMS against the converged body
 # on clean recordings with the body's law, 0.66 mm with a corotational file against a
-# Neo-Hookean body (docs/diagnosis.md, tenth run); more than twice that is more than
+# Neo-Hookean body (docs/diagnosis_history.md, tenth run); more than twice that is more than
 # discretisation and law together.
 UNEXPLAINED_MM = 1.5
 # Two candidates whose per-segment held-out errors differ by less than this many standard
