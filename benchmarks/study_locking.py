@@ -9,9 +9,13 @@ mesh with the reference's shape functions). The reference is P2-P0 on the finest
 on the same mesh and the change from the next coarser P2-P0 mesh say how converged it is.
 
     python benchmarks/study_locking.py    # about 2 hours on a 2-core machine
+    python benchmarks/study_locking.py --reduced    # the reduced model's rows alone
 
 Equilibria are cached in out/study_locking/ (delete it to recompute); the script writes
-docs/locking.md and docs/locking_convergence.png.
+docs/locking.md and docs/locking_convergence.png. --reduced compares the reduced p2 models
+of benchmarks/bench_reduced.py (trained there when missing) with the same references and
+rewrites only their section of docs/locking.md (about 15 minutes with the references to
+solve, seconds once they are cached).
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.bench_fem import update_timing
 from softforce_cli.fem.allocator import keep_freed_memory
 from softforce_cli.fem.statics import solve_equilibrium
+from softforce_cli.io.atomic import atomic_write_text
 from softforce_cli.model.config import load_config
 from softforce_cli.model.mesh import TetMesh
 from softforce_cli.model.mesh_io import read_tet_mesh
@@ -227,7 +232,73 @@ def summary(results: dict[str, list[dict]]) -> list[str]:
     return lines
 
 
-def write_report(results: dict[str, list[dict]], rates: dict[str, tuple], docs: Path) -> None:
+REDUCED_BEGIN, REDUCED_END = "<!-- reduced model rows -->", "<!-- end reduced model rows -->"
+
+
+def reduced_section(log) -> str:
+    """The reduced model's section of docs/locking.md (between its markers): the reduced p2
+    models of benchmarks/bench_reduced.py (the default robot's coarse mesh, 200 modes) and
+    their full p2 model against the default robot's references, as summary() reads the
+    coarse models, and each reduced model against its full one."""
+    from benchmarks.bench_reduced import FAST_SETTINGS, SETTINGS, reduced_robot
+
+    _, reference_level = levels_of("default")
+    reference = equilibria(reference_level, log)
+    other = equilibria(dataclasses.replace(reference_level, element="p2"), log)
+    lines = ["| model, coarse default mesh | surface RMS (mm) vs P2-P0 fine: 5 cases | worst "
+             "max | vs P2 fine | vs midpoint | apex sag, gravity (reference) | vs its full "
+             "p2 model |", "|---|---|---|---|---|---|---|"]
+    full = None
+    for label, settings, stem in (("ECSW 3e-3", SETTINGS, ""),
+                                  ("ECSW 3e-2", FAST_SETTINGS, "diamond_p2_fast")):
+        full, reduced = reduced_robot(settings=settings, stem=stem)
+        if label == "ECSW 3e-3":
+            full_mm = {case: solve_equilibrium(full.fe_model, full.cable_inputs(actuation)
+                                               ).positions_mm for case, actuation in CASES.items()}
+            lines.append(_reduced_row("full p2", full, full_mm, reference, other, None))
+        positions = {case: solve_equilibrium(reduced.fe_model, reduced.cable_inputs(actuation)
+                                             ).positions_mm for case, actuation in CASES.items()}
+        info = reduced.fe_model.reduction.info
+        lines.append(_reduced_row(f"reduced p2, {info['modes']} modes, {label} "
+                                  f"({info['sampled_points']} points)", reduced, positions,
+                                  reference, other, (full, full_mm)))
+    log(f"reduced rows: {len(lines) - 2}")
+    return "\n".join([REDUCED_BEGIN, *lines, REDUCED_END])
+
+
+def _reduced_row(label: str, robot: Robot, positions: dict[str, np.ndarray],
+                 reference: tuple[Robot, dict], other: tuple[Robot, dict],
+                 full: tuple[Robot, dict] | None) -> str:
+    def span(values) -> str:
+        return f"{min(values):.2f} to {max(values):.2f}"
+
+    against = {name: [surface_difference(robot, positions[case],
+                                         [(r, mm[case]) for r, mm in references])
+                      for case in CASES]
+               for name, references in (("reference", [reference]), ("P2", [other]),
+                                        ("midpoint", [reference, other]))}
+    to_full = "-" if full is None else span([
+        surface_difference(robot, positions[case], [(full[0], full[1][case])])[0]
+        for case in CASES])
+    return (f"| {label} | {span([rms for rms, _ in against['reference']])} | "
+            f"{max(worst for _, worst in against['reference']):.2f} | "
+            f"{span([rms for rms, _ in against['P2']])} | "
+            f"{span([rms for rms, _ in against['midpoint']])} | "
+            f"{apex_sag_mm(robot, positions['gravity']):.2f} "
+            f"({apex_sag_mm(reference[0], reference[1]['gravity']):.2f}) | {to_full} |")
+
+
+def write_reduced_section(section: str, docs: Path) -> None:
+    """Replace the reduced model's section of docs/locking.md (the rest is kept)."""
+    path = docs / "locking.md"
+    text = path.read_text()
+    head, rest = text.split(REDUCED_BEGIN)
+    _, tail = rest.split(REDUCED_END)
+    atomic_write_text(path, head + section + tail, force=True)
+
+
+def write_report(results: dict[str, list[dict]], rates: dict[str, tuple], reduced: str,
+                 docs: Path) -> None:
     """docs/locking.md: the measured tables (the prose around them is in REPORT)."""
     sections = []
     for name, rows in results.items():
@@ -243,7 +314,7 @@ def write_report(results: dict[str, list[dict]], rates: dict[str, tuple], docs: 
                      f"{len(robot.fe_model.free_dofs)} |")
     text = REPORT.format(cases=", ".join(CASES), tables="\n".join(sections),
                          speed="\n".join(speed), summary="\n".join(summary(results)),
-                         date=time.strftime("%Y-%m-%d"))
+                         date=time.strftime("%Y-%m-%d"), reduced=reduced)
     (docs / "locking.md").write_text(text)
     plot(results, docs / "locking_convergence.png")
 
@@ -252,11 +323,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--robots", default="default,sofa")
     parser.add_argument("--docs", type=Path, default=ROOT / "docs")
+    parser.add_argument("--reduced", action="store_true",
+                        help="only the reduced model's section of docs/locking.md")
     args = parser.parse_args()
     keep_freed_memory()
 
     def log(message: str) -> None:
         print(message, file=sys.stderr, flush=True)
+
+    if args.reduced:
+        write_reduced_section(reduced_section(log), args.docs)
+        return
 
     results = {}
     for name in args.robots.split(","):
@@ -267,7 +344,7 @@ def main() -> None:
     rates = {element: update_timing(element, repeats=5) for element in ("p1", "p2", "p2-p0")}
     coarser = Level("default", "h12", "p2-p0")
     rates["p2-p0 on the 12 mm mesh"] = update_timing("p2-p0", 5, _robot(coarser))
-    write_report(results, rates, args.docs)
+    write_report(results, rates, reduced_section(log), args.docs)
 
 
 REPORT = """# Volumetric locking and the element choice (issue 5)
@@ -339,6 +416,22 @@ text interprets the run recorded in the project's history.
   against 2 to 15 mm/N with P1. Whether the real robot tips depends on E, the mass and the
   real geometry; a calibrated E or the nominal model without gravity (the robot file
   allows it) avoids it.
+
+## The reduced model
+
+The reduced p2 models that `make bench` trains on the coarse default mesh
+(`softforce model reduce`, docs/reduced_model.md: 200 modes, cables 0-10 mm with gravity),
+solved in the same five cases and compared with the same references (`python
+benchmarks/study_locking.py --reduced`). The coarse full p2 model of the same robot file is
+solved alongside, and the last column compares each reduced model with it:
+
+{reduced}
+
+The five cases are training actuations of the reduced models (gravity alone, each cable at
+the box's 10 mm alone), so there a reduced model gives its full model's answer to within
+the last column, and against the converged body it inherits the coarse mesh's error, which
+the reduction leaves as it is. Its own error on untrained loads (other actuations, a contact
+between features, a probe, two contacts) is in docs/reduced_model.md.
 
 ## What is compared
 

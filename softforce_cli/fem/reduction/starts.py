@@ -103,13 +103,14 @@ def serpentine_grid(low: np.ndarray, high: np.ndarray, levels: int) -> np.ndarra
 
 
 def start_library(model: ReducedModel, controls: tuple[str, ...], actuations: np.ndarray,
-                  positions_mm: np.ndarray, scale: np.ndarray, levels: int,
-                  low: np.ndarray, high: np.ndarray) -> StartLibrary:
+                  positions_mm: np.ndarray, low: np.ndarray, high: np.ndarray, levels: int
+                  ) -> StartLibrary:
     """The reduced model's own equilibria at the training actuations (k, a), each solved
     from the full model's equilibrium there (k, n, 3) mm, and on a grid of `levels` per
     cable over the box [low, high] (a,), each solved from the one before (a grid point
     that does not solve is left out and the next starts from the library); with their
-    sensitivities. `scale` (a,) is the distance unit per cable."""
+    sensitivities. Distances between inputs are in box widths."""
+    scale = np.maximum(np.asarray(high, float) - low, 1e-9)
     controlled = CableInputs(controls, np.zeros(len(controls))).displacement_controlled
     entries = [_entry(solve_equilibrium(model, CableInputs(controls, values),
                                         start_mm=positions), controlled)

@@ -175,9 +175,8 @@ def train(model: FEModel, controls: tuple[str, ...], low: np.ndarray, high: np.n
     reduction = Reduction(model.element.name, basis, elements, points, weights, box,
                           fingerprint(model), model.material.young_modulus_mpa, info)
     starts = start_library(ReducedModel(model, reduction), tuple(controls), data.actuations,
-                           data.positions_mm, np.maximum(box.cable_max - box.cable_min, 1e-9),
-                           grid_levels(settings.start_levels, len(controls)), box.cable_min,
-                           box.cable_max)
+                           data.positions_mm, box.cable_min, box.cable_max,
+                           grid_levels(settings.start_levels, len(controls)))
     reduction = dataclasses.replace(reduction, starts=starts)
     step(2 * len(actuations) + 3)
     info["starts_s"] = time.perf_counter() - started - snapshots_s - pod_s - ecsw_s
