@@ -342,7 +342,9 @@ def test_cli_reduce_resumes_from_snapshots_and_writes_a_usable_file(beam, tmp_pa
     result = softforce("model", "reduce", toml, "-o", output, "--max-force", "0.1",
                        "--max-modes", str(SETTINGS.max_modes), "--json")
     assert result.returncode == 0, result.stderr
-    assert json.loads(result.stdout)["modes"] == trained.mode_count
+    summary = json.loads(result.stdout)
+    assert summary["modes"] == trained.mode_count
+    assert summary["start_equilibria"] == len(trained.starts.inputs)
     assert not resumed.exists()  # deleted without --keep-snapshots
     reduction = load_reduction(output)
     np.testing.assert_allclose(np.abs(reduction.basis), np.abs(trained.basis), atol=1e-8)

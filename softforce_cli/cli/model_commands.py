@@ -198,6 +198,7 @@ def reduce(
                "validation_rms_mm": reduction.box.rms_error_mm,
                "max_force_n": reduction.box.max_force_n,
                "max_displacement_mm": reduction.box.max_displacement_mm,
+               "start_equilibria": info["start_equilibria"],
                "training_s": round(info["total_s"], 1),
                "robot_key": f'[mesh] reduced = "{output.name}"'}
     if json_output:
@@ -219,6 +220,8 @@ def reduce(
     table.add_row("valid for", f"cables {inputs}; contact forces up to {box.max_force_n:g} N; "
                                f"shapes up to {box.max_displacement_mm:.1f} mm RMS from rest "
                                "(beyond, it warns)")
+    table.add_row("static solves", f"start from the nearest of {info['start_equilibria']} "
+                                   "of its own equilibria over the box, moved to first order")
     table.add_row("training", f"{info['total_s']:.0f} s")
     table.add_row("written", str(output))
     table.add_row("use it", escape(f'add reduced = "{output.name}" under [mesh] of '

@@ -180,6 +180,7 @@ def train(model: FEModel, controls: tuple[str, ...], low: np.ndarray, high: np.n
     reduction = dataclasses.replace(reduction, starts=starts)
     step(2 * len(actuations) + 3)
     info["starts_s"] = time.perf_counter() - started - snapshots_s - pod_s - ecsw_s
+    info["start_equilibria"] = len(starts.inputs)
     errors = validate(model, reduction, controls, low, high, surface_nodes,
                       settings.validations, lambda done: step(total - settings.validations
                                                               + done), sites)
