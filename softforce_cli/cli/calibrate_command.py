@@ -68,7 +68,6 @@ def calibrate(
     from softforce_cli.calibration.calibrate import CalibrationSettings
     from softforce_cli.calibration.result import result_to_dict, result_to_json
     from softforce_cli.calibration.robust import calibrate_checked
-    from softforce_cli.fem.allocator import keep_freed_memory
     from softforce_cli.io.atomic import atomic_write_text, check_writable
     from softforce_cli.model.robot import load_robot
 
@@ -86,7 +85,6 @@ def calibrate(
     settings = CalibrationSettings(outer_iterations=iterations, inner_iterations=inner)
     model = load_robot(robot)
     observed, source = _observed(markers, recording, frame)
-    keep_freed_memory()
     with stderr.status("calibrating...") as status:
         def report(step) -> None:
             status.update(f"calibrating: iteration {step.iteration}, residual "

@@ -61,7 +61,6 @@ def sense(
 ) -> None:
     """Estimate contact locations and force intensities per frame (paper section V)."""
     from softforce_cli.estimation.setup import SenseInputs, prepare_sensing
-    from softforce_cli.fem.allocator import keep_freed_memory
 
     if live == (recording is not None):
         raise SensingError("give exactly one of a recording REC.mcap or --live")
@@ -77,7 +76,6 @@ def sense(
         tare_frames=tare,
         force=force,
     )
-    keep_freed_memory()
     with stderr.status("loading the robot and the first frame..."):
         prepared = prepare_sensing(inputs, live=live)
     # the interrupt is deferred outside the live source, so that a Ctrl-C ends the loop and

@@ -10,9 +10,9 @@ solve given no start begins at the nearest one moved to first order:
 They are the training equilibria (the full model's, solved again on the basis) and a grid
 of `levels` inputs per cable across the box, solved one from the next along a path that
 changes one cable by one grid step at a time (`serpentine_grid`). From the 12 training
-equilibria alone Newton's method took 3-8 iterations on the coarse Diamond (median 5); from
-a grid of 5 levels (625 equilibria, 23 s of training at ECSW 3e-2) 3-4 (median 3), for 16
-random actuations (`benchmarks/bench_reduced.py --starts`).
+equilibria alone Newton's method took 3-7 iterations on the coarse Diamond (median 5); from
+a grid of 4 levels (256 equilibria) 3-4 (median 3), as from 5 levels (625), for 16 random
+actuations (`benchmarks/bench_reduced.py --starts`; docs/reduced_model.md).
 
 J_k = dq/du at equilibrium k, from the saddle-point system of eq. 4-5 with the
 displacement-controlled cables that pull there held (a slack one neither holds nor moves
@@ -78,7 +78,7 @@ def input_sensitivities(rows: np.ndarray, responses: np.ndarray, controlled: np.
     return out
 
 
-MAX_GRID_STARTS = 4096  # 5 levels for 5 cables, 4 for 6: about 2 minutes of training
+MAX_GRID_STARTS = 4096  # 4 levels for up to 6 cables, 3 for 7: minutes of training
 
 
 def grid_levels(levels: int, cables: int) -> int:

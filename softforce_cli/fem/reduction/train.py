@@ -84,9 +84,10 @@ class TrainingSettings:
     start_levels       : grid values per cable of the reduced model's own equilibria kept to
                          start static solves given no start (starts.py; levels^a of them,
                          fewer levels for many cables: at most MAX_GRID_STARTS). On the
-                         Diamond, 5 levels took the median solve from 5 Newton iterations
-                         (the 12 training equilibria alone) to 3, for 23-50 s of training;
-                         1 keeps the training equilibria only.
+                         Diamond, 4 levels (256) took the median solve from 5 Newton
+                         iterations (the 12 training equilibria alone) to 3, as 5 levels
+                         (625) did; 3 levels left 5 on some actuations. 1 keeps the
+                         training equilibria only.
     box_fraction       : train over [min, min + fraction (max - min)] of each cable: the
                          robot file's max may fold the accurate (softer) model beyond what
                          the sensing uses (the coarse Diamond's p2 model with one cable at
@@ -105,7 +106,7 @@ class TrainingSettings:
     box_fraction: float = 1.0
     sample_points: bool = True
     contact_states: int = 3
-    start_levels: int = 5
+    start_levels: int = 4
 
 
 def train(model: FEModel, controls: tuple[str, ...], low: np.ndarray, high: np.ndarray,
