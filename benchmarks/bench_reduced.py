@@ -20,10 +20,9 @@ the float32 tangent's effect on W (docs/reduced_model_history.md, "The update's 
 compliance's cable rows now and as formed before. --capacity measures W at the loaded
 cases against the basis size alone (200, 280 and 400 modes, integrated exactly; a few
 minutes), then 280 modes hyper-reduced as the bench trains them, with their update (7
-minutes more). --starts compares static solves
-given no start (the nearest start equilibrium moved to first order: the training
-equilibria and the grid, or the training equilibria alone) with solves from rest at 16
-random actuations (a minute).
+minutes more). --starts compares static solves given no start (the nearest start
+equilibrium moved to first order: the training equilibria and the grid, or the training
+equilibria alone) with solves from rest at 16 random actuations (a minute).
 """
 
 from __future__ import annotations
@@ -60,7 +59,10 @@ from softforce_cli.fem.reduction.accuracy import (  # noqa: E402
     compare,
     respond,
 )
-from softforce_cli.fem.reduction.reduced_model import ReducedCoordinates  # noqa: E402
+from softforce_cli.fem.reduction.reduced_model import (  # noqa: E402
+    ReducedCoordinates,
+    TrainingBox,
+)
 from softforce_cli.fem.reduction.rom_file import save_reduction  # noqa: E402
 from softforce_cli.fem.reduction.tangent import plain_tangent  # noqa: E402
 from softforce_cli.fem.reduction.train import TrainingSettings, train_robot  # noqa: E402
@@ -233,11 +235,8 @@ def static_solves(robot: Robot, count: int = 8) -> dict[str, tuple[float, str]]:
     before ended in (as a sensing loop holds it: evaluated there, its tangent not formed),
     the actuation going back and forth between the two. The node positions are not read."""
     model = robot.fe_model
-    box = model.reduction.box
-    actuations = box.cable_min + np.random.default_rng(7).random((count, len(box.cable_min))) * (
-        box.cable_max - box.cable_min)
     times, iterations = [], []
-    for values in actuations:
+    for values in random_actuations(model.reduction.box, count, seed=7):
         inputs = robot.cable_inputs(values)
         iterations.append(solve_equilibrium(model, inputs).iterations)
         times.append(median_time(lambda inputs=inputs: solve_equilibrium(model, inputs),
@@ -254,6 +253,12 @@ def static_solves(robot: Robot, count: int = 8) -> dict[str, tuple[float, str]]:
     tracking_s = median_time(track, repeats=20)
     return {"given no start": (float(np.median(times)), _spread(iterations)),
             "from a frame 0.5 mm away": (tracking_s, str(track().iterations))}
+
+
+def random_actuations(box: TrainingBox, count: int, seed: int) -> np.ndarray:
+    """(count, a) actuations drawn uniformly in a reduced model's training box."""
+    width = box.cable_max - box.cable_min
+    return box.cable_min + np.random.default_rng(seed).random((count, len(width))) * width
 
 
 def _spread(values: list[int]) -> str:
@@ -553,16 +558,12 @@ def starts_study(count: int = 16) -> None:
     model = reduced.fe_model
     reduction = model.reduction
     starts, trained = reduction.starts, reduction.info["static_snapshots"]
-    alone = dataclasses.replace(model, reduction=dataclasses.replace(reduction, starts=(
-        dataclasses.replace(starts, inputs=starts.inputs[:trained],
-                            coordinates=starts.coordinates[:trained],
-                            sensitivities=starts.sensitivities[:trained]))))
-    box = reduction.box
+    alone = dataclasses.replace(model, reduction=dataclasses.replace(
+        reduction, starts=starts.first(trained)))
     ways = {"grid": (model, None), "training equilibria": (alone, None),
             "rest": (model, model.rest_nodes_mm)}
     rows = []
-    for values in box.cable_min + np.random.default_rng(1).random(
-            (count, len(box.cable_min))) * (box.cable_max - box.cable_min):
+    for values in random_actuations(reduction.box, count, seed=1):
         inputs = reduced.cable_inputs(values)
         answers, times = [], []
         for way, start in ways.values():

@@ -248,20 +248,20 @@ def reduced_section(log) -> str:
     lines = ["| model, coarse default mesh | surface RMS (mm) vs P2-P0 fine: 5 cases | worst "
              "max | vs P2 fine | vs midpoint | apex sag, gravity (reference) | vs its full "
              "p2 model |", "|---|---|---|---|---|---|---|"]
-    full = None
-    for label, settings, stem in (("ECSW 3e-3", SETTINGS, ""),
-                                  ("ECSW 3e-2", FAST_SETTINGS, "diamond_p2_fast")):
-        full, reduced = reduced_robot(settings=settings, stem=stem)
-        if label == "ECSW 3e-3":
-            full_mm = {case: solve_equilibrium(full.fe_model, full.cable_inputs(actuation)
-                                               ).positions_mm for case, actuation in CASES.items()}
-            lines.append(_reduced_row("full p2", full, full_mm, reference, other, None))
-        positions = {case: solve_equilibrium(reduced.fe_model, reduced.cable_inputs(actuation)
-                                             ).positions_mm for case, actuation in CASES.items()}
+    def solved(robot: Robot) -> dict[str, np.ndarray]:
+        return {case: solve_equilibrium(robot.fe_model, robot.cable_inputs(actuation)
+                                        ).positions_mm for case, actuation in CASES.items()}
+
+    models = {"ECSW 3e-3": reduced_robot(settings=SETTINGS),
+              "ECSW 3e-2": reduced_robot(settings=FAST_SETTINGS, stem="diamond_p2_fast")}
+    full = next(iter(models.values()))[0]  # the same full robot under both
+    full_mm = solved(full)
+    lines.append(_reduced_row("full p2", full, full_mm, reference, other, None))
+    for label, (_, reduced) in models.items():
         info = reduced.fe_model.reduction.info
         lines.append(_reduced_row(f"reduced p2, {info['modes']} modes, {label} "
-                                  f"({info['sampled_points']} points)", reduced, positions,
-                                  reference, other, (full, full_mm)))
+                                  f"({info['sampled_points']} points)", reduced,
+                                  solved(reduced), reference, other, (full, full_mm)))
     log(f"reduced rows: {len(lines) - 2}")
     return "\n".join([REDUCED_BEGIN, *lines, REDUCED_END])
 

@@ -766,10 +766,8 @@ def test_solves_start_at_the_nearest_training_equilibrium_moved_to_first_order(b
         assert solve_equilibrium(model, robot.cable_inputs(values)).iterations == 1
 
     # near the corner, the training equilibria alone (the grid has points nearer)
-    alone = dataclasses.replace(starts, inputs=starts.inputs[:trained],
-                                coordinates=starts.coordinates[:trained],
-                                sensitivities=starts.sensitivities[:trained])
-    sparse = ReducedModel(robot.full_fe_model, dataclasses.replace(reduction, starts=alone))
+    sparse = ReducedModel(robot.full_fe_model,
+                          dataclasses.replace(reduction, starts=starts.first(trained)))
 
     def error(offset):
         inputs = robot.cable_inputs(corner - offset)

@@ -55,6 +55,11 @@ class StartLibrary:
     sensitivities: np.ndarray
     scale: np.ndarray
 
+    def first(self, count: int) -> StartLibrary:
+        """The library of its first `count` equilibria (the training's come first)."""
+        return StartLibrary(self.inputs[:count], self.coordinates[:count],
+                            self.sensitivities[:count], self.scale)
+
     def predict(self, values: np.ndarray) -> np.ndarray:
         """(r,) q predicted at cable inputs (a,): the nearest equilibrium, to first order."""
         offsets = np.asarray(values, dtype=float) - self.inputs
