@@ -252,8 +252,9 @@ def reduced_section(log) -> str:
         return {case: solve_equilibrium(robot.fe_model, robot.cable_inputs(actuation)
                                         ).positions_mm for case, actuation in CASES.items()}
 
-    models = {"ECSW 3e-3": reduced_robot(settings=SETTINGS),
-              "ECSW 3e-2": reduced_robot(settings=FAST_SETTINGS, stem="diamond_p2_fast")}
+    models = {f"ECSW {SETTINGS.ecsw_tolerance:g}": reduced_robot(settings=SETTINGS),
+              f"ECSW {FAST_SETTINGS.ecsw_tolerance:g}": reduced_robot(settings=FAST_SETTINGS,
+                                                                     stem="diamond_p2_fast")}
     full = next(iter(models.values()))[0]  # the same full robot under both
     full_mm = solved(full)
     lines.append(_reduced_row("full p2", full, full_mm, reference, other, None))

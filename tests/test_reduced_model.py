@@ -24,16 +24,19 @@ from softforce_cli.fem.attachment import Attachment
 from softforce_cli.fem.element import deformation_gradients
 from softforce_cli.fem.materials import Material
 from softforce_cli.fem.reduction.accuracy import LoadCase, between_features, case_errors
-from softforce_cli.fem.reduction.ecsw import sparse_nnls
+from softforce_cli.fem.reduction.ecsw import energy_weight, sparse_nnls
 from softforce_cli.fem.reduction.pod import pod_basis, projection_errors
 from softforce_cli.fem.reduction.reduced_model import ReducedModel, ReducedModelWarning
 from softforce_cli.fem.reduction.rom_file import load_reduction, reduced_model, save_reduction
+from softforce_cli.fem.reduction.snapshots import load_training_set
 from softforce_cli.fem.reduction.starts import grid_levels, input_sensitivities, serpentine_grid
 from softforce_cli.fem.reduction.train import (
     CLAMP_CLEARANCE_MM,
     TrainingSettings,
     contact_sites,
     every_point,
+    projected_states,
+    state_weights,
     successive_pod,
     train_robot,
 )
@@ -743,6 +746,54 @@ def test_input_sensitivities_solve_the_saddle_point_system():
         else:
             rhs[:c] = H[cable]
         np.testing.assert_allclose(J[:, cable], np.linalg.solve(system, rhs)[:c], atol=1e-12)
+
+
+def test_energy_weight_measures_the_held_displacement_error():
+    """|M df|^2 is df . dq, dq from the saddle-point system [K, H^T; H, 0] solved whole, for
+    a tangent that is indefinite until the held rows stabilise it (the cable-held Diamond);
+    with nothing held the same K has no energy norm."""
+    rng = np.random.default_rng(5)
+    c = 10
+    root = rng.normal(size=(c, c))
+    H = rng.normal(size=(2, c))
+    # positive on H's null space, negative along H's rows
+    null = np.linalg.svd(H)[2][2:]
+    K = null.T @ (root[:8, :8] @ root[:8, :8].T + np.eye(8)) @ null - 3.0 * H.T @ H
+    assert np.linalg.eigvalsh(K).min() < 0.0
+    M = energy_weight(K, H)
+    assert M.shape == (c - 2, c)
+    system = np.block([[K, H.T], [H, np.zeros((2, 2))]])
+    for _ in range(3):
+        df = rng.normal(size=c)
+        dq = np.linalg.solve(system, np.r_[df, 0.0, 0.0])[:c]
+        assert np.linalg.norm(M @ df) ** 2 == pytest.approx(df @ dq, rel=1e-10)
+    assert energy_weight(K, H[:0]) is None
+
+
+def test_the_sampling_weighs_each_state_in_its_held_error_energy(beam):
+    """Each training state's ECSW rows (train.state_weights) hold the cables taut there: a
+    force along a taut held cable's row carries no error energy, one row fewer per such
+    cable, and a slack cable holds nothing."""
+    robot, reduction, cache = beam
+    model = robot.full_fe_model
+    with np.load(cache) as stored:
+        data = load_training_set(cache, str(stored["key"]))
+    controls = tuple(spec.control for spec in robot.cable_specs)
+    assert controls == ("displacement", "displacement")
+    states = projected_states(model, reduction.basis, data.states_mm)
+    tensions = data.state_tensions_n
+    weights = state_weights(model, reduction.basis, states, tensions, controls)
+    assert len(weights) == len(states) == len(data.positions_mm) + len(data.loaded_mm) + len(
+        data.contact_mm)
+    r = reduction.mode_count
+    for x, pulls, weight in zip(states, tensions, weights, strict=True):
+        rows = model.cable_jacobian(x) @ reduction.basis
+        taut = pulls > 0.0
+        assert weight.shape == (r - taut.sum(), r)
+        moved = np.linalg.norm(weight @ rows.T, axis=0)  # (a,) the energy a cable's pull makes
+        scale = np.linalg.norm(weight, 2) * np.linalg.norm(rows, axis=1)
+        assert np.all(moved[taut] <= 1e-9 * scale[taut])
+        assert np.all(moved[~taut] > 1e-3 * scale[~taut])
 
 
 def test_solves_start_at_the_nearest_training_equilibrium_moved_to_first_order(beam):

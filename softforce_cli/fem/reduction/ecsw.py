@@ -6,7 +6,8 @@ training state:
 
     min |C w - b|   subject to w >= 0,   stopped once |C w - b| <= tolerance |b|,
 
-with C[(state, mode), e] = V_e^T g_e(x_state) (Farhat, Chapman and Avery, IJNME 2015). That is
+with C[(state, mode), e] = V_e^T g_e(x_state) (Farhat, Chapman and Avery, IJNME 2015), each
+state's rows measured in the energy of the displacement error they cause (energy_weight). That is
 Lawson and Hanson's active-set NNLS (the algorithm of scipy.optimize.nnls) stopped early: it
 adds one element at a time, so stopping at the tolerance leaves a few hundred of them.
 scipy's compiled nnls only returns the exact optimum (up to one element per row), so the loop
@@ -30,6 +31,28 @@ ECSW_TOLERANCE = 1e-3
 # The element pass (the first of two: elements, then single points among theirs) fits this
 # much tighter, so that the point pass can reach the tolerance with a subset of its points.
 POINT_TOLERANCE_FACTOR = 0.5
+
+
+def energy_weight(stiffness: np.ndarray, held_rows: np.ndarray) -> np.ndarray | None:
+    """(r - c, r) M = L^-1 N^T such that |M df|^2 = df^T dq, the energy of the displacement
+    error dq (r,) that a reduced force error df (r,) N causes at a state of reduced tangent
+    K (r, r) N/mm with the rows H (c, r) held (taut displacement-controlled cables): dq is the
+    solution of [K H^T; H 0] [dq; dl] = [df; 0], N (r, r - c) an orthonormal basis of H's
+    null space, L L^T = N^T K N. None where N^T K N is not positive definite (a state past
+    its stability: no energy norm).
+
+    A force error along a stiff direction moves the body little and one along a soft
+    direction much: the Diamond, held by its cables near its apex-tipping instability, moves
+    by tens of times more per newton along its softest reduced direction than along its
+    stiffest. Fitting the forces in this norm rather than their own puts the sampling's
+    points where they hold the shape (docs/reduced_model.md, "ECSW in the energy norm").
+    """
+    null = scipy.linalg.null_space(held_rows) if len(held_rows) else np.eye(len(stiffness))
+    try:
+        factor = np.linalg.cholesky(null.T @ stiffness @ null)
+    except np.linalg.LinAlgError:
+        return None
+    return scipy.linalg.solve_triangular(factor, null.T, lower=True)
 
 
 @dataclass(frozen=True)

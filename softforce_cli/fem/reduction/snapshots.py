@@ -46,6 +46,8 @@ SEED = 20181016  # fixed: training is reproducible
 # A training solve that needs more Newton iterations than this is retried in smaller steps
 # (a converging one takes ~10 from rest); failing fast saves minutes on a quadratic mesh.
 ATTEMPT = SolverSettings(max_iterations=20)
+# The loaded states of each static equilibrium: this many contacts pressing at once.
+LOADED_CONTACTS = (1, 2)
 
 
 @dataclass(frozen=True)
@@ -62,6 +64,7 @@ class TrainingSet:
     loaded_mm      : (L, n, 3) equilibria plus first-order contact responses.
     max_force_n    : the largest contact force used.
     contact_mm     : (C, n, 3) nonlinear equilibria under contact forces.
+    contact_tensions_n : (C, a) their cable tensions.
     contact_responses : (3n, Rc) responses at them, contact_columns per state (the features'
                      normal rows, the cables, then the state's contacts zero-padded to two).
     """
@@ -74,12 +77,26 @@ class TrainingSet:
     loaded_mm: np.ndarray
     max_force_n: float
     contact_mm: np.ndarray
+    contact_tensions_n: np.ndarray
     contact_responses: np.ndarray
 
     @property
     def contact_columns(self) -> int:
         """Responses per contact equilibrium (contact_responses is split by it)."""
         return self.contact_responses.shape[1] // max(len(self.contact_mm), 1)
+
+    @property
+    def states_mm(self) -> np.ndarray:
+        """(S + L + C, n, 3): the static, loaded and contact states, in that order."""
+        return np.concatenate([self.positions_mm, self.loaded_mm, self.contact_mm])
+
+    @property
+    def state_tensions_n(self) -> np.ndarray:
+        """(S + L + C, a): the cable tensions at states_mm, a loaded state's those of the
+        equilibrium it extrapolates from."""
+        return np.concatenate([self.tensions_n,
+                               np.repeat(self.tensions_n, len(LOADED_CONTACTS), axis=0),
+                               self.contact_tensions_n])
 
 
 def actuation_design(low: np.ndarray, high: np.ndarray, extra: int = 2) -> np.ndarray:
@@ -148,6 +165,7 @@ def collect(model: FEModel, controls: tuple[str, ...], actuations: np.ndarray,
     done = 0
     positions, tensions, responses, loaded = [], [], [], []
     contacts: list[np.ndarray] = []
+    contact_tensions: list[np.ndarray] = []
     contact_responses: list[np.ndarray] = []
     factor = None
     solved: list[tuple[np.ndarray, np.ndarray]] = []
@@ -166,7 +184,7 @@ def collect(model: FEModel, controls: tuple[str, ...], actuations: np.ndarray,
             rows = sp_vstack_dense(feature_rows, model.cable_jacobian(x))
             responses.append(lin.responses(rows))
         # one contact, then two, pressing inwards at random features
-        for count in (1, 2):
+        for count in LOADED_CONTACTS:
             picks = rng.choice(len(feature_nodes), size=count, replace=False)
             magnitudes = rng.uniform(0.3, 1.0, count) * max_force_n / count
             rows = features.subset(picks).directional_rows(-feature_normals[picks],
@@ -179,7 +197,8 @@ def collect(model: FEModel, controls: tuple[str, ...], actuations: np.ndarray,
                                        features, feature_normals, sites, max_force_n, rng,
                                        factor)
                 if state is not None:
-                    contacts.append(state[0])
+                    contacts.append(state[0].positions_mm)
+                    contact_tensions.append(state[0].cable_tensions_n)
                     contact_responses.append(state[1])
         done += 1
         if progress is not None:
@@ -190,6 +209,7 @@ def collect(model: FEModel, controls: tuple[str, ...], actuations: np.ndarray,
         tensions_n=np.array(tensions), responses=np.hstack(responses),
         response_states=states, loaded_mm=np.array(loaded), max_force_n=float(max_force_n),
         contact_mm=np.array(contacts) if contacts else np.zeros(shape),
+        contact_tensions_n=np.array(contact_tensions).reshape(len(contacts), len(controls)),
         contact_responses=(np.hstack(contact_responses) if contact_responses
                            else np.zeros((3 * model.node_count, 0))),
     )
@@ -198,8 +218,8 @@ def collect(model: FEModel, controls: tuple[str, ...], actuations: np.ndarray,
 def _contact_state(model: FEModel, inputs: CableInputs, unloaded: Equilibrium,
                    features: Attachment, feature_normals: np.ndarray, sites: ContactSites,
                    max_force_n: float, rng: np.random.Generator, factor: Factor | None
-                   ) -> tuple[np.ndarray, np.ndarray] | None:
-    """One contact equilibrium from `unloaded`: (positions (n, 3), responses (3n, p + a + 2))
+                   ) -> tuple[Equilibrium, np.ndarray] | None:
+    """One contact equilibrium from `unloaded`: (the equilibrium, responses (3n, p + a + 2))
     to the features' rest normals, the cables and its (up to two) contacts, or None when
     Newton's method does not reach it (a load the body buckles under: left out)."""
     count = int(rng.integers(1, 3))
@@ -219,7 +239,7 @@ def _contact_state(model: FEModel, inputs: CableInputs, unloaded: Equilibrium,
     rows = np.vstack([features.directional_rows(feature_normals, model.node_count).toarray(),
                       model.cable_jacobian(x), contact_rows,
                       np.zeros((2 - count, 3 * model.node_count))])
-    return x, lin.responses(rows)
+    return loaded, lin.responses(rows)
 
 
 def _continued(model: FEModel, controls: tuple[str, ...], target: np.ndarray,

@@ -6,26 +6,40 @@ threads only add wake-ups and spinning. Measured on the coarse Diamond (200 mode
 update took 24 ms with the pools' two threads and 14 ms on one, an LU of K_r 16 ms against
 0.25 ms, a static solve 291 ms against 150 ms with another job on the machine
 (docs/reduced_model.md). threadpoolctl's controller is made when this module is imported,
-after numpy and scipy.linalg, so it sees both libraries; entering and leaving a limit costs
-about 8 us.
+after numpy and scipy.linalg, so it sees both libraries.
+
+A sensing update enters this context about a dozen times, nested too: it reads and sets the
+libraries' thread counts directly (about 2 us, nothing when they are already one) rather than
+through threadpoolctl's `limit`, which queries every library's description (13 us).
 """
 
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import TypeVar
 
 import scipy.linalg  # noqa: F401  (numpy's and scipy's BLAS loaded before the controller looks)
 from threadpoolctl import ThreadpoolController
 
-_BLAS = ThreadpoolController()
+_LIBRARIES = [library for library in ThreadpoolController().lib_controllers
+              if library.user_api == "blas"]
 Result = TypeVar("Result")
 
 
-def one_blas_thread():
-    """A context in which BLAS runs on one thread."""
-    return _BLAS.limit(limits=1, user_api="blas")
+@contextmanager
+def one_blas_thread() -> Iterator[None]:
+    """A context in which BLAS runs on one thread (the counts before restored after)."""
+    changed = [(library, count) for library in _LIBRARIES
+               if (count := library.get_num_threads()) != 1]
+    for library, _ in changed:
+        library.set_num_threads(1)
+    try:
+        yield
+    finally:
+        for library, count in changed:
+            library.set_num_threads(count)
 
 
 def on_one_blas_thread(function: Callable[..., Result]) -> Callable[..., Result]:

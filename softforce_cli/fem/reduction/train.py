@@ -20,6 +20,7 @@ from softforce_cli.fem.model import FEModel
 from softforce_cli.fem.reduction.ecsw import (
     ECSW_TOLERANCE,
     POINT_TOLERANCE_FACTOR,
+    energy_weight,
     force_contributions,
     point_force_contributions,
     point_operators,
@@ -142,7 +143,7 @@ def train(model: FEModel, controls: tuple[str, ...], low: np.ndarray, high: np.n
             save_training_set(cache, data, key)
     snapshots_s = time.perf_counter() - started
     rest = model.rest_nodes_mm.ravel()
-    states = np.concatenate([data.positions_mm, data.loaded_mm, data.contact_mm])
+    states = data.states_mm
     states = states.reshape(len(states), -1).T - rest[:, None]
     # the loaded states' responses before the unloaded ones (successive_pod)
     basis, singular = successive_pod([states, data.contact_responses, data.responses],
@@ -151,7 +152,7 @@ def train(model: FEModel, controls: tuple[str, ...], low: np.ndarray, high: np.n
     worst_projection = float(projection_errors(basis, columns).max())
     step(2 * len(actuations) + 1)
     pod_s = time.perf_counter() - started - snapshots_s
-    elements, points, weights, residual = sample(model, basis, data, settings)
+    elements, points, weights, residual = sample(model, basis, data, settings, controls)
     step(2 * len(actuations) + 2)
     ecsw_s = time.perf_counter() - started - snapshots_s - pod_s
     # the true equilibria (not the first-order loaded states, which extrapolate)
@@ -258,9 +259,10 @@ def contact_sites(robot, per_state: int) -> ContactSites:
     return ContactSites(nodes, robot.mesh.vertex_normals[nodes], per_state)
 
 
-def sample(model: FEModel, basis: np.ndarray, data: TrainingSet, settings: TrainingSettings
-           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """ECSW in two passes: (elements (s,), points (s,), weights (s,), relative residual).
+def sample(model: FEModel, basis: np.ndarray, data: TrainingSet, settings: TrainingSettings,
+           controls: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """ECSW in two passes: (elements (s,), points (s,), weights (s,), relative residual),
+    each state's blocks in the energy norm of its displacement error (state_weights).
 
     The first pass picks elements among the whole mesh; the second picks single quadrature
     points among those elements' points against the same (whole-mesh) targets. The update
@@ -269,13 +271,15 @@ def sample(model: FEModel, basis: np.ndarray, data: TrainingSet, settings: Train
     """
     if settings.ecsw_tolerance <= 0.0:
         return (*every_point(model), 0.0)
+    states = projected_states(model, basis, data.states_mm)
+    norms = state_weights(model, basis, states, data.state_tensions_n, controls)
 
     def whole(x: np.ndarray, directions: np.ndarray | None) -> np.ndarray:
         if directions is None:
             return force_contributions(model, basis, x)
         return tangent_contributions(model, basis, x, directions)
 
-    C, b, targets = ecsw_system(model, basis, data, settings.tangent_directions, whole)
+    C, b, targets = ecsw_system(basis, data, states, norms, settings.tangent_directions, whole)
     factor = POINT_TOLERANCE_FACTOR if settings.sample_points else 1.0
     first = sparse_nnls(C, b, factor * settings.ecsw_tolerance, settings.max_elements)
     del C
@@ -292,7 +296,8 @@ def sample(model: FEModel, basis: np.ndarray, data: TrainingSet, settings: Train
             return point_force_contributions(model, operators, candidates, x)
         return point_tangent_contributions(model, operators, candidates, x, directions)
 
-    C, b, _ = ecsw_system(model, basis, data, settings.tangent_directions, pointwise, targets)
+    C, b, _ = ecsw_system(basis, data, states, norms, settings.tangent_directions, pointwise,
+                          targets)
     second = sparse_nnls(C, b, settings.ecsw_tolerance)
     per_element = operators.shape[1]
     return (candidates[second.elements // per_element], second.elements % per_element,
@@ -307,37 +312,62 @@ def every_point(model: FEModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             np.tile(np.arange(per_element), elements), np.ones(elements * per_element))
 
 
-def ecsw_system(model: FEModel, basis: np.ndarray, data: TrainingSet, directions: int,
+def projected_states(model: FEModel, basis: np.ndarray, states_mm: np.ndarray) -> np.ndarray:
+    """(k, n, 3) mm: states (k, n, 3) projected on the basis, where the reduced model sees
+    them."""
+    rest = model.rest_nodes_mm
+    moved = (states_mm - rest).reshape(len(states_mm), -1)
+    return rest + ((moved @ basis) @ basis.T).reshape(states_mm.shape)
+
+
+def state_weights(model: FEModel, basis: np.ndarray, states_mm: np.ndarray,
+                  tensions_n: np.ndarray, controls: tuple[str, ...]) -> list[np.ndarray | None]:
+    """ecsw.energy_weight at each state (k, n, 3) mm with its cable tensions (k, a) N: the
+    full model's tangent (cables' geometric stiffness included) on the basis, its taut
+    displacement-controlled cables held."""
+    free = basis[model.free_dofs]
+    held = np.array([control == "displacement" for control in controls], dtype=bool)
+    weights = []
+    for x, tensions in zip(states_mm, tensions_n, strict=True):
+        _, stiffness = model.internal_forces_and_stiffness(x)
+        stiffness = stiffness + model.cable_stiffness(x, tensions)
+        rows = model.cable_jacobian(x)[held & (tensions > 0.0)] @ basis
+        weights.append(energy_weight(free.T @ (stiffness @ free), rows))
+    return weights
+
+
+def ecsw_system(basis: np.ndarray, data: TrainingSet, states_mm: np.ndarray,
+                norms: list[np.ndarray | None], directions: int,
                 contributions: Callable[[np.ndarray, np.ndarray | None], np.ndarray],
                 targets: list[np.ndarray] | None = None
                 ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
     """C (rows, columns), b (rows,) of the ECSW fit, and the blocks' exact targets.
 
-    Blocks: the reduced internal forces at every training state projected on the basis
-    (contact equilibria included; their tangents are not fitted: 36 more states times 8
-    directions made the system of the coarse Diamond outgrow 24 GB), and
-    the reduced tangents along the leading reduced response directions at the response
-    states; `contributions(x, Q or None)` gives a block's columns (elements or points). Each
-    block is scaled to unit norm so that every state counts alike. The targets are the
+    Blocks: the reduced internal forces at every training state (data.states_mm, projected:
+    states_mm; contact equilibria included; their tangents are not fitted: 36 more states
+    times 8 directions made the system of the coarse Diamond outgrow 24 GB), and the reduced
+    tangents along the leading reduced response directions at the response states;
+    `contributions(x, Q or None)` gives a block's columns (elements or points). A block is
+    weighted by its state's energy norm (norms, aligned with the states; None: its own
+    norm) and scaled to unit norm so that every state counts alike. The targets are the
     columns' sums unless given (the whole mesh's sums, when the columns are a subset).
     """
-    rest = model.rest_nodes_mm
-
-    def projected(x: np.ndarray) -> np.ndarray:
-        return rest + (basis @ (basis.T @ (x - rest).ravel())).reshape(-1, 3)
-
-    blocks = [contributions(projected(x), None)
-              for x in np.concatenate([data.positions_mm, data.loaded_mm, data.contact_mm])]
+    blocks = [contributions(x, None) for x in states_mm]
+    owners = list(range(len(states_mm)))
     r = basis.shape[1]
     per_state = data.responses.shape[1] // len(data.response_states)
     for j, index in enumerate(data.response_states):
         reduced = basis.T @ data.responses[:, j * per_state:(j + 1) * per_state]
         leading = np.linalg.svd(reduced, full_matrices=False)[0][:, :directions]
-        moved = contributions(projected(data.positions_mm[index]), leading)
-        blocks.extend(np.split(moved, leading.shape[1]) if r else [])
+        moved = contributions(states_mm[index], leading)
+        parts = np.split(moved, leading.shape[1]) if r else []
+        blocks.extend(parts)
+        owners.extend([int(index)] * len(parts))
     targets = [block.sum(axis=1) for block in blocks] if targets is None else targets
     C_rows, b_rows = [], []
-    for block, target in zip(blocks, targets, strict=True):
+    for block, target, owner in zip(blocks, targets, owners, strict=True):
+        if norms[owner] is not None:
+            block, target = norms[owner] @ block, norms[owner] @ target
         norm = float(np.linalg.norm(target))
         if norm > 0.0:
             C_rows.append(block / norm)
