@@ -431,9 +431,9 @@ solved alongside, and the last column compares each reduced model with it:
 The five cases are training actuations of the reduced models (gravity alone, each cable at
 the box's 10 mm alone), so there a reduced model gives its full model's answer to within
 the last column, and against the converged body it inherits the coarse mesh's error, which
-the reduction leaves as it is (0.03-0.07 mm more at ECSW 3e-3). The sparser sampling of
-ECSW 3e-2 leaves up to 0.75 mm RMS at these edges of the box, one cable pulled 10 mm alone,
-where the bench's untrained actuation inside the box is within 0.44 mm (2026-11-29). The
+the reduction leaves as it is (0.02-0.06 mm more at ECSW 1e-2). The sparser sampling of
+ECSW 3e-2 leaves up to 0.18 mm RMS at these edges of the box, one cable pulled 10 mm alone
+(0.75 mm before the ECSW weighed its fit in the energy norm, 2026-11-29). The
 reduction's own error on untrained loads (other actuations, a contact between features, a
 probe, two contacts) is in docs/reduced_model.md.
 

@@ -34,9 +34,9 @@ from softforce_cli.fem.reduction.train import (
     CLAMP_CLEARANCE_MM,
     TrainingSettings,
     contact_sites,
+    energy_norms,
     every_point,
     projected_states,
-    state_weights,
     successive_pod,
     train_robot,
 )
@@ -771,7 +771,7 @@ def test_energy_weight_measures_the_held_displacement_error():
 
 
 def test_the_sampling_weighs_each_state_in_its_held_error_energy(beam):
-    """Each training state's ECSW rows (train.state_weights) hold the cables taut there: a
+    """Each training state's ECSW rows (train.energy_norms) hold the cables taut there: a
     force along a taut held cable's row carries no error energy, one row fewer per such
     cable, and a slack cable holds nothing."""
     robot, reduction, cache = beam
@@ -782,7 +782,7 @@ def test_the_sampling_weighs_each_state_in_its_held_error_energy(beam):
     assert controls == ("displacement", "displacement")
     states = projected_states(model, reduction.basis, data.states_mm)
     tensions = data.state_tensions_n
-    weights = state_weights(model, reduction.basis, states, tensions, controls)
+    weights = energy_norms(model, reduction.basis, states, tensions, controls)
     assert len(weights) == len(states) == len(data.positions_mm) + len(data.loaded_mm) + len(
         data.contact_mm)
     r = reduction.mode_count

@@ -26,7 +26,8 @@ from softforce_cli.fem.element import deformation_gradients, gradient_operators
 from softforce_cli.fem.model import FEModel
 
 # Relative residual of the weighted element sums over the training set: 1e-3 keeps the
-# reduced forces and tangents within 0.1% of the exact projection on the training states.
+# sampled forces and tangents of the training states within about 0.1% of the exact
+# projection's, measured in the energy of the displacement they cause (energy_weight).
 ECSW_TOLERANCE = 1e-3
 # The element pass (the first of two: elements, then single points among theirs) fits this
 # much tighter, so that the point pass can reach the tolerance with a subset of its points.

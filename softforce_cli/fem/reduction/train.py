@@ -57,12 +57,13 @@ class TrainingSettings:
     """Training knobs, with why.
 
     energy_tolerance   : POD energy left out (pod.ENERGY_TOLERANCE).
-    ecsw_tolerance     : relative residual of the sampled element sums (ecsw.ECSW_TOLERANCE);
+    ecsw_tolerance     : relative residual of the sampled element sums, each state's in the
+                         energy norm of its displacement error (ecsw.ECSW_TOLERANCE);
                          0: no hyper-reduction, every quadrature point at weight 1 (the
                          Galerkin projection: exact, an update as costly as the mesh).
     max_modes          : cap on the basis size: the update costs ~ sampled points x r^2
                          (on the Diamond 200 modes read the bench's probes 8.5% off at the
-                         median and keep W under its 0.25 N probe within 3-10%, 280 within
+                         median and keep W under its 0.25 N probe within 2-12%, 280 within
                          1-5% at twice the update: docs/reduced_model.md).
     max_elements       : cap on the sampled elements (None: the tolerance decides).
     tangent_directions : reduced directions the tangent is trained along, per response state.
@@ -262,7 +263,7 @@ def contact_sites(robot, per_state: int) -> ContactSites:
 def sample(model: FEModel, basis: np.ndarray, data: TrainingSet, settings: TrainingSettings,
            controls: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """ECSW in two passes: (elements (s,), points (s,), weights (s,), relative residual),
-    each state's blocks in the energy norm of its displacement error (state_weights).
+    each state's blocks in the energy norm of its displacement error (energy_norms).
 
     The first pass picks elements among the whole mesh; the second picks single quadrature
     points among those elements' points against the same (whole-mesh) targets. The update
@@ -272,7 +273,7 @@ def sample(model: FEModel, basis: np.ndarray, data: TrainingSet, settings: Train
     if settings.ecsw_tolerance <= 0.0:
         return (*every_point(model), 0.0)
     states = projected_states(model, basis, data.states_mm)
-    norms = state_weights(model, basis, states, data.state_tensions_n, controls)
+    norms = energy_norms(model, basis, states, data.state_tensions_n, controls)
 
     def whole(x: np.ndarray, directions: np.ndarray | None) -> np.ndarray:
         if directions is None:
@@ -320,7 +321,7 @@ def projected_states(model: FEModel, basis: np.ndarray, states_mm: np.ndarray) -
     return rest + ((moved @ basis) @ basis.T).reshape(states_mm.shape)
 
 
-def state_weights(model: FEModel, basis: np.ndarray, states_mm: np.ndarray,
+def energy_norms(model: FEModel, basis: np.ndarray, states_mm: np.ndarray,
                   tensions_n: np.ndarray, controls: tuple[str, ...]) -> list[np.ndarray | None]:
     """ecsw.energy_weight at each state (k, n, 3) mm with its cable tensions (k, a) N: the
     full model's tangent (cables' geometric stiffness included) on the basis, its taut
