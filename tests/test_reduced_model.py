@@ -366,6 +366,21 @@ def test_cli_reduce_resumes_from_snapshots_and_writes_a_usable_file(beam, tmp_pa
     assert_one_line_error(loose, "--ecsw-tolerance 1.5 must be in [0, 1)")
 
 
+def test_a_sampling_too_loose_for_the_robot_is_reported(beam):
+    """A tolerance whose points no longer hold the beam's stiffness warns with the
+    validation's error (0.3: about 0.6 mm, 7% of its 9.1 mm shape), and one whose reduced
+    model cannot reach its own training equilibria (0.6) stops with one line; the fixture's
+    1e-3 does neither."""
+    robot, trained, cache = beam
+    assert trained.box.rms_error_mm < 0.01 * trained.box.max_displacement_mm
+    with pytest.warns(ReducedModelWarning, match="its sampling is too loose"):
+        loose = train_robot(robot, dataclasses.replace(SETTINGS, ecsw_tolerance=0.3),
+                            cache=cache)
+    assert loose.box.rms_error_mm > 0.05 * loose.box.max_displacement_mm
+    with pytest.raises(ModelError, match="finds no equilibrium at one of its own training"):
+        train_robot(robot, dataclasses.replace(SETTINGS, ecsw_tolerance=0.6), cache=cache)
+
+
 def test_training_at_ecsw_tolerance_zero_keeps_every_point(beam):
     """No hyper-reduction at tolerance 0 (the exact Galerkin projection, for studies of the
     basis alone): every quadrature point at weight 1, on the same basis."""

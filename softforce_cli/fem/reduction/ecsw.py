@@ -43,10 +43,10 @@ def energy_weight(stiffness: np.ndarray, held_rows: np.ndarray) -> np.ndarray | 
     its stability: no energy norm).
 
     A force error along a stiff direction moves the body little and one along a soft
-    direction much: the Diamond, held by its cables near its apex-tipping instability, moves
-    by tens of times more per newton along its softest reduced direction than along its
-    stiffest. Fitting the forces in this norm rather than their own puts the sampling's
-    points where they hold the shape (docs/reduced_model.md, "ECSW in the energy norm").
+    direction much: the Diamond, held by its cables near its apex-tipping instability, has a
+    held reduced tangent whose eigenvalues span five orders of magnitude. Fitting the forces
+    in this norm rather than their own puts the sampling's points where they hold the shape
+    (docs/reduced_model.md, "ECSW in the energy norm").
     """
     null = scipy.linalg.null_space(held_rows) if len(held_rows) else np.eye(len(stiffness))
     try:

@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from softforce_cli.errors import ModelError
 from softforce_cli.fem.cables import CableInputs
 from softforce_cli.fem.statics import Equilibrium, SolverError, solve_equilibrium
 
@@ -114,27 +115,42 @@ def start_library(model: ReducedModel, controls: tuple[str, ...], actuations: np
     from the full model's equilibrium there (k, n, 3) mm, and on a grid of `levels` per
     cable over the box [low, high] (a,), each solved from the one before (a grid point
     that does not solve is left out and the next starts from the library); with their
-    sensitivities. Distances between inputs are in box widths."""
+    sensitivities. Distances between inputs are in box widths. ModelError when the model
+    finds no equilibrium at a training actuation (a sampling too loose for the robot)."""
+    from softforce_cli.fem.reduction.reduced_model import ReducedModelWarning  # (a cycle)
+
+    with warnings.catch_warnings():
+        # a corner of the box may fold the body past the training's shapes: still the
+        # reduced model's own equilibrium there, the start its solves want
+        warnings.simplefilter("ignore", ReducedModelWarning)
+        return _solved_library(model, controls, actuations, positions_mm, low, high, levels)
+
+
+def _solved_library(model: ReducedModel, controls: tuple[str, ...], actuations: np.ndarray,
+                    positions_mm: np.ndarray, low: np.ndarray, high: np.ndarray, levels: int
+                    ) -> StartLibrary:
+    """start_library's solves."""
     scale = np.maximum(np.asarray(high, float) - low, 1e-9)
     controlled = CableInputs(controls, np.zeros(len(controls))).displacement_controlled
-    entries = [_entry(solve_equilibrium(model, CableInputs(controls, values),
-                                        start_mm=positions), controlled)
-               for values, positions in zip(actuations, positions_mm, strict=True)]
+    try:
+        entries = [_entry(solve_equilibrium(model, CableInputs(controls, values),
+                                            start_mm=positions), controlled)
+                   for values, positions in zip(actuations, positions_mm, strict=True)]
+    except SolverError:
+        raise ModelError(
+            f"the reduced model ({len(model.reduction.points)} sampled points) finds no "
+            "equilibrium at one of its own training actuations: its sampling is too loose "
+            "for this robot; retrain with a smaller ECSW tolerance (--ecsw-tolerance) or more "
+            "modes") from None
     library = _library(np.asarray(actuations, dtype=float), entries, scale)
     if levels < 2:
         return library
     trained = dataclasses.replace(model, reduction=dataclasses.replace(model.reduction,
                                                                         starts=library))
-    from softforce_cli.fem.reduction.reduced_model import ReducedModelWarning  # (a cycle)
-
     grid, grid_entries, last = [], [], None
     for values in serpentine_grid(low, high, levels):
         try:
-            with warnings.catch_warnings():
-                # a corner of the box may fold the body past the training's shapes: still
-                # the reduced model's own equilibrium there, the start its solves want
-                warnings.simplefilter("ignore", ReducedModelWarning)
-                last = solve_equilibrium(trained, CableInputs(controls, values), start=last)
+            last = solve_equilibrium(trained, CableInputs(controls, values), start=last)
         except SolverError:
             last = None
             continue
