@@ -343,7 +343,7 @@ def energy_norms(model: FEModel, basis: np.ndarray, states_mm: np.ndarray,
     full model's tangent (cables' geometric stiffness included) on the basis, its taut
     displacement-controlled cables held."""
     free = basis[model.free_dofs]
-    held = np.array([control == "displacement" for control in controls], dtype=bool)
+    held = CableInputs(controls, np.zeros(len(controls))).displacement_controlled
     weights = []
     for x, tensions in zip(states_mm, tensions_n, strict=True):
         _, stiffness = model.internal_forces_and_stiffness(x)
