@@ -3,6 +3,7 @@ tangent consistency, definiteness, and agreement with scikit-fem's linear elasti
 
 import numpy as np
 import pytest
+import scipy.linalg
 import scipy.sparse as sp
 import skfem
 from scipy.sparse.linalg import eigsh
@@ -12,7 +13,7 @@ from skfem.models.elasticity import linear_elasticity
 
 from softforce_cli.fem.attachment import attach_points
 from softforce_cli.fem.cables import Cable, CableInputs
-from softforce_cli.fem.materials import LAWS, Material
+from softforce_cli.fem.materials import LAWS, Material, polar_decomposition
 from softforce_cli.fem.model import FEModel
 from softforce_cli.fem.statics import SolverSettings, solve_equilibrium
 from softforce_cli.fem.tet_p1 import shape_gradients
@@ -272,3 +273,27 @@ def test_linear_stiffness_equals_scikit_fem():
     _, ours = model.internal_forces_and_stiffness(nodes)
     assert ours.shape == reference.shape == (3 * len(nodes),) * 2
     assert np.abs(ours - reference).max() < 1e-13 * np.abs(reference).max()
+
+
+# --- polar decomposition ----------------------------------------------------------------
+
+
+def test_polar_decomposition_matches_scipy_to_round_off():
+    """The scaled Newton iteration, stopped after its first step under
+    POLAR_CONVERGED_STEP, gives scipy's polar factors to round-off for stretches from 0.1 to
+    10, and a proper rotation for inverted elements (where scipy's factor reflects)."""
+    rng = np.random.default_rng(3)
+    count = 400
+    rotations = Rotation.random(2 * count, random_state=4).as_matrix()
+    stretches = np.exp(rng.uniform(np.log(0.1), np.log(10.0), (count, 3)))
+    F = rotations[:count] * stretches[:, None, :] @ rotations[count:]
+    inverted = F[:20] * np.array([1.0, 1.0, -1.0])  # det < 0: one direction flipped
+    R, S = polar_decomposition(np.concatenate([F, inverted]))
+    for k in range(count):
+        R_ref, S_ref = scipy.linalg.polar(F[k], side="right")
+        np.testing.assert_allclose(R[k], R_ref, atol=1e-13)
+        np.testing.assert_allclose(S[k], S_ref, atol=1e-12 * stretches[k].max())
+    np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-13)
+    np.testing.assert_allclose(R.transpose(0, 2, 1) @ R, np.broadcast_to(np.eye(3), R.shape),
+                               atol=1e-13)
+    np.testing.assert_allclose(R @ S, np.concatenate([F, inverted]), atol=1e-12 * 10)

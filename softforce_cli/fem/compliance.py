@@ -100,11 +100,11 @@ def linearize_state(
 def rows_at(rows, state: State) -> np.ndarray:
     """H x (k,) for rows H (k, 3n) (dense or sparse) at a configuration, from the positions of
     the few nodes the rows touch."""
-    rows = sp.csr_matrix(rows)
-    nodes = np.unique(rows.indices // 3)
-    local = 3 * np.searchsorted(nodes, rows.indices // 3) + rows.indices % 3
-    touched = sp.csr_matrix((rows.data, local, rows.indptr), shape=(rows.shape[0], 3 * len(nodes)))
-    return touched @ state.nodes_mm(nodes).ravel()
+    rows = rows if sp.issparse(rows) and rows.format == "csr" else sp.csr_matrix(rows)
+    nodes, inverse = np.unique(rows.indices // 3, return_inverse=True)
+    values = rows.data * state.nodes_mm(nodes).ravel()[3 * inverse + rows.indices % 3]
+    owners = np.repeat(np.arange(rows.shape[0]), np.diff(rows.indptr))
+    return np.bincount(owners, weights=values, minlength=rows.shape[0])
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,10 @@ TRACE9 = np.outer(EYE.ravel(), EYE.ravel())
 # Scaled Newton iterations for the polar factor converge quadratically; this many reach
 # round-off for stretches up to 10x (Higham, "Computing the polar decomposition", 1986).
 POLAR_ITERATIONS = 12
+# Near the polar factor a Newton step's error is about half its square over the smallest
+# singular value: after a step smaller than this, the iterate is at round-off, and one more
+# step (a fifth of the iteration's time on the Diamond) would only confirm it.
+POLAR_CONVERGED_STEP = 1e-8
 
 # Law = (F, lam, mu, with_tangent) -> (energy density (m,), P (m, 3, 3), A (m, 9, 9) or None)
 Law = Callable[[np.ndarray, float, float, bool], tuple[np.ndarray, np.ndarray, np.ndarray | None]]
@@ -161,16 +165,24 @@ def _linear(F, lam, mu, with_tangent):
     return energy, stress, tangent
 
 
+def _cofactor_indices() -> tuple[np.ndarray, ...]:
+    """Row indices (a, b, c, d) of a 3 x 3 matrix stored as nine rows (row-major) such that
+    cofactor_ij = x_a x_b - x_c x_d: x_(i+1)(j+1) x_(i+2)(j+2) - x_(i+1)(j+2) x_(i+2)(j+1),
+    indices mod 3."""
+    i, j = np.divmod(np.arange(9), 3)
+    return tuple(3 * ((i + p) % 3) + (j + q) % 3 for p, q in ((1, 1), (2, 2), (1, 2), (2, 1)))
+
+
+_COFACTOR_A, _COFACTOR_B, _COFACTOR_C, _COFACTOR_D = _cofactor_indices()
+
+
 def _cofactors(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Cofactor matrices (= det X^-T) and determinants of matrices stored as (9, m) rows."""
-    x00, x01, x02, x10, x11, x12, x20, x21, x22 = x
-    c00, c01, c02 = x11 * x22 - x12 * x21, x12 * x20 - x10 * x22, x10 * x21 - x11 * x20
-    cofactors = np.stack([
-        c00, c01, c02,
-        x02 * x21 - x01 * x22, x00 * x22 - x02 * x20, x01 * x20 - x00 * x21,
-        x01 * x12 - x02 * x11, x02 * x10 - x00 * x12, x00 * x11 - x01 * x10,
-    ])
-    return cofactors, x00 * c00 + x01 * c01 + x02 * c02
+    # four gathers of all nine components: the update's polar iteration calls this on a few
+    # hundred points, where numpy's per-call cost, not the arithmetic, sets the time
+    cofactors = (x.take(_COFACTOR_A, axis=0) * x.take(_COFACTOR_B, axis=0)
+                 - x.take(_COFACTOR_C, axis=0) * x.take(_COFACTOR_D, axis=0))
+    return cofactors, (x[:3] * cofactors[:3]).sum(axis=0)
 
 
 def inverse_transpose(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -197,7 +209,7 @@ def polar_decomposition(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         updated = 0.5 * (scale * X + cofactors / (scale * det))
         change = np.abs(updated - X).max(initial=0.0)
         X = updated
-        if change < 1e-14:
+        if change < POLAR_CONVERGED_STEP:
             break
     R = np.empty_like(F, dtype=float)
     R[upright] = X.T.reshape(-1, 3, 3)

@@ -276,6 +276,10 @@ class ReducedCoordinates:
                                               for i, c in enumerate(self.local_cables)])
         self.segment_rows = (self.segment_differences @ self.cable_basis).reshape(
             -1, 3, self.size)
+        # sums over each cable's segments (a, segments), and the cables' rest lengths (a,)
+        self.segment_sums = (self.segment_cables
+                             == np.arange(len(self.local_cables))[:, None]).astype(float)
+        self.cable_rest_lengths = np.array([c.rest_length_mm for c in self.local_cables])
         # elements with clamped and free nodes: an element with every node clamped stays at
         # rest and exerts nothing
         clamped = np.isin(full.tets, full.fixed_nodes)
@@ -354,15 +358,29 @@ class ReducedCoordinates:
     @on_one_blas_thread
     def _cable_terms(self, nodes_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Shortenings (a,) mm and rows H V (a, r) from the cables' nodes' positions (m, 3)."""
-        shortenings, rows = self._cable_rows(nodes_mm)
-        return shortenings, rows @ self.cable_basis
+        shortenings, directions = self._cable_segments(nodes_mm)
+        # d(shortening)/dq = -sum over the cable's segments of t_s . (D_s V)
+        along = np.einsum("sk,skr->sr", directions, self.segment_rows)
+        return shortenings, -(self.segment_sums @ along)
 
     def _cable_rows(self, nodes_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Shortenings (a,) mm and rows H (a, 3m) over the cables' nodes (positions (m, 3))."""
-        cables, m = self.local_cables, len(nodes_mm)
-        shortenings = np.array([cable.shortening(nodes_mm) for cable in cables])
-        rows = np.array([cable.jacobian_row(nodes_mm, m) for cable in cables])
-        return shortenings, rows.reshape(len(cables), 3 * m)
+        shortenings, directions = self._cable_segments(nodes_mm)
+        differences = self.segment_differences.reshape(len(directions), 3, -1)
+        along = np.einsum("sk,skn->sn", directions, differences)
+        return shortenings, -(self.segment_sums @ along)
+
+    def _cable_segments(self, nodes_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Shortenings (a,) mm and every cable segment's unit direction (segments, 3) from
+        the cables' nodes' positions (m, 3)."""
+        segments = self._segment_vectors(nodes_mm)
+        lengths = np.linalg.norm(segments, axis=1)
+        return (self.cable_rest_lengths - self.segment_sums @ lengths,
+                segments / lengths[:, None])
+
+    def _segment_vectors(self, nodes_mm: np.ndarray) -> np.ndarray:
+        """(segments, 3) mm: every cable segment, from the cables' nodes' positions (m, 3)."""
+        return (self.segment_differences @ nodes_mm.ravel()).reshape(-1, 3) + self.segment_pulls
 
     @on_one_blas_thread
     def _forces(self, stress: np.ndarray) -> np.ndarray:
@@ -407,8 +425,7 @@ class ReducedCoordinates:
     def cable_stiffness(self, nodes_mm: np.ndarray, tensions_n: np.ndarray) -> np.ndarray:
         """(r, r) N/mm, the cables' geometric stiffness on the basis from the cables' nodes'
         positions (m, 3) and tensions (a,)."""
-        segments = (self.segment_differences @ nodes_mm.ravel()).reshape(-1, 3)
-        blocks = segment_stiffness(segments + self.segment_pulls,
+        blocks = segment_stiffness(self._segment_vectors(nodes_mm),
                                    np.asarray(tensions_n)[self.segment_cables])
         rows = self.segment_rows
         return rows.reshape(-1, self.size).T @ (blocks @ rows).reshape(-1, self.size)
