@@ -53,7 +53,10 @@ class ReducedTangent:
         if self._shift is None or not np.array_equal(shift, self._shift):
             scaled = (self.weights * shift)[:, None, None] * self.operators
             r = self.size
-            self._shift_term = self.operators.reshape(-1, r).T @ scaled.reshape(-1, r)
+            term = self.operators.reshape(-1, r).T @ scaled.reshape(-1, r)
+            # symmetric to the last bit, so that K_r, to which the syrk terms add exactly
+            # symmetric products, is too (no symmetrisation per update)
+            self._shift_term = 0.5 * (term + term.T)
             self._shift = shift.copy()
         return self._shift_term
 
@@ -66,9 +69,14 @@ class ReducedTangent:
             scale = np.sqrt(self.weights[where, None] * np.abs(factors.coefficients))
             rows = (scale[:, :, None] * factors.rows).astype(self.dtype)
             for sign, H in _signed_rows(rows, self.low[where], factors.coefficients < 0.0):
-                # numpy computes a.T @ a of one C-ordered array with syrk
-                total += sign * (H.T @ H)
-        return 0.5 * (total + total.T)
+                # numpy computes a.T @ a of one C-ordered array with syrk, and mirrors its
+                # triangle: the product is exactly symmetric
+                product = H.T @ H
+                if sign > 0:
+                    total += product
+                else:
+                    total -= product
+        return total
 
 
 def _signed_rows(rows: np.ndarray, operators: np.ndarray, negative: np.ndarray
