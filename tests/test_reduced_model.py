@@ -16,6 +16,7 @@ import warnings
 import meshio
 import numpy as np
 import pytest
+import scipy.sparse as sp
 from scipy.optimize import nnls
 
 from softforce_cli.calibration.linear_model import linear_model
@@ -153,6 +154,10 @@ def test_reduced_matches_full_on_untrained_loads(beam, index):
     assert errors.rms_mm <= 0.5
     for name, value in errors.W_relative.items():
         assert value <= 0.05, (name, value)
+    if len(case.forces_n):  # held taut cables: the compliance sensing solves with
+        assert errors.held_ef_relative <= 0.05
+    else:
+        assert np.isnan(errors.held_ef_relative)
     # equilibrium: the supports hold the same load, the cables pull the same
     assert errors.reaction_n <= 0.02 * (0.02 * 9.81 + MAX_FORCE_N)
     assert errors.tension_n <= 0.05 * 0.2
@@ -687,6 +692,42 @@ def test_compliance_cable_rows_are_the_projected_jacobian(beam, reduced):
     np.testing.assert_allclose(W.W_af, (H @ responses)[:, 2:], atol=1e-10 * scale)
     np.testing.assert_allclose(W.delta_a_free, model.cable_shortenings(eq.positions_mm)
                                + H @ lin.free_motion_mm.ravel(), atol=1e-10)
+
+
+@pytest.mark.parametrize("reduced", [False, True])
+def test_held_compliance_solves_the_bordered_system(beam, reduced):
+    """Compliance.held_ef, the Schur complement W_ef - W_eh W_hh^-1 W_hf, equals the
+    effectors' motion from the saddle-point system [K H_h^T; H_h 0] [u; mu] = [H_f^T; 0]
+    (the held cables' lengths fixed by multipliers), solved whole; holding no cable leaves
+    W_ef."""
+    from softforce_cli.fem.compliance import compliance, linearize
+
+    robot, reduction, _ = beam
+    model = ReducedModel(robot.full_fe_model, reduction) if reduced else robot.full_fe_model
+    eq = solve_equilibrium(model, robot.cable_inputs(np.array([4.0, 1.0])))
+    lin = linearize(model, eq.positions_mm, eq.cable_tensions_n)
+    features = Attachment.at_nodes(robot.feature_nodes)
+    effectors = features.directional_rows(robot.feature_normals, model.node_count)
+    forces = features.directional_rows(-robot.feature_normals, model.node_count)[3:5]
+    W = compliance(lin, effectors, forces)
+    space = model.coordinates
+    _, K = space.forces_and_tangent(eq.positions_mm, eq.cable_tensions_n)
+    K = K.toarray() if sp.issparse(K) else np.asarray(K)
+
+    def projected(rows) -> np.ndarray:
+        rows = space.project_rows(rows)
+        return rows.toarray() if sp.issparse(rows) else np.asarray(rows)
+
+    cables = projected(model.cable_jacobian(eq.positions_mm))
+    for held in (np.array([True, True]), np.array([True, False]), np.array([False, False])):
+        H = cables[held]
+        bordered = np.block([[K, H.T], [H, np.zeros((len(H), len(H)))]])
+        rhs = np.vstack([projected(forces).T, np.zeros((len(H), forces.shape[0]))])
+        motion = np.linalg.solve(bordered, rhs)[: len(K)]
+        expected = projected(effectors) @ motion
+        np.testing.assert_allclose(W.held_ef(held), expected,
+                                   atol=1e-9 * np.abs(expected).max())
+    np.testing.assert_array_equal(W.held_ef(np.array([False, False])), W.W_ef)
 
 
 def test_sensing_linearisation_works_in_the_reduced_coordinates(beam):

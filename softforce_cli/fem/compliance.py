@@ -123,6 +123,17 @@ class Compliance:
     delta_e_free: np.ndarray
     delta_a_free: np.ndarray
 
+    def held_ef(self, held: np.ndarray) -> np.ndarray:
+        """(e, f) mm/N: the effectors' motion per unit force with the cables `held` (a,) bool
+        kept at their lengths, W_ef - W_eh W_hh^-1 W_hf (eq. 3-4 with delta_h fixed: what a
+        displacement-controlled taut cable does, and what sensing's eq. 14 solves with)."""
+        held = np.asarray(held, dtype=bool)
+        if not held.any():
+            return np.asarray(self.W_ef)
+        tensions = np.linalg.solve(np.asarray(self.W_aa)[np.ix_(held, held)],
+                                   np.asarray(self.W_af)[held])
+        return np.asarray(self.W_ef) - np.asarray(self.W_ea)[:, held] @ tensions
+
 
 def effector_rows(
     points: Attachment, node_count: int, normals: np.ndarray | None = None
