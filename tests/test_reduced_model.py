@@ -374,7 +374,7 @@ def test_cli_reduce_resumes_from_snapshots_and_writes_a_usable_file(beam, tmp_pa
 def test_a_sampling_too_loose_for_the_robot_is_reported(beam):
     """A tolerance whose points no longer hold the beam's stiffness warns with the
     validation's error (0.3: about 0.6 mm, 7% of its 9.1 mm shape); one whose reduced model
-    misses its own training equilibria by more than half the shape (0.6: 17 mm, or no
+    misses its own training equilibria by more than half the shape (0.6: 19 mm, or no
     equilibrium at all, as Newton's path happens to go) or finds none (0.8) stops with one
     line; the fixture's 1e-3 does neither."""
     robot, trained, cache = beam

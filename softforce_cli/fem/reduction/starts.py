@@ -43,9 +43,10 @@ if TYPE_CHECKING:  # reduced_model keeps a StartLibrary
 # Training stops when the reduced model's equilibrium at one of its own training actuations
 # is this fraction of the training's largest shape away from the full model's. A sampling
 # whose points no longer hold the body gives such an equilibrium or none (on the test beam
-# at ECSW 0.6: 17 mm on a 9 mm shape); a usable one is within a few percent (the Diamond at
+# at ECSW 0.6: 19 mm on a 9 mm shape); a usable one is within a few percent (the Diamond at
 # 3e-2: 0.7%), and one in between warns after validation (train.VALIDATION_WARNING_FRACTION).
 TRAINED_EQUILIBRIUM_LIMIT = 0.5
+
 
 @dataclass(frozen=True)
 class StartLibrary:
