@@ -447,6 +447,7 @@ def study() -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
     from benchmarks.bench_sense import robot_reading, sense_run
 
@@ -481,7 +482,7 @@ def study() -> None:
         probe = next(e for name, e in errors.items() if "probe" in name)
         row = (modes, tolerance, points, max(e.rms_mm for e in inside),
                max(max(e.W_relative.values()) for e in inside), probe.rms_mm,
-               probe.W_relative["W_ef"], update_s)
+               probe.W_relative["W_ef"], update_s, probe.held_ef_relative)
         print(f"modes {modes}, ECSW tol {tolerance:g}: {points} points, worst RMS "
               f"{row[3]:.3f} mm, worst W {100 * row[4]:.1f}% (without the two contacts), "
               f"probe {row[5]:.3f} mm, W_ef {100 * row[6]:.1f}%; update "
@@ -505,12 +506,16 @@ def study() -> None:
         pick = data[:, 1] == tolerance
         label = f"ECSW tol {tolerance:g}"
         axes[0].semilogy(data[pick, 0], data[pick, 5], "o-", label=label)
-        axes[1].semilogy(data[pick, 0], 100 * data[pick, 6], "o-", label=label)
+        line, = axes[1].semilogy(data[pick, 0], 100 * data[pick, 6], "o-")
+        axes[1].semilogy(data[pick, 0], 100 * data[pick, 8], "s--", color=line.get_color())
         axes[2].plot(data[pick, 2], 1 / data[pick, 7], "o", label=label)
     axes[0].axhline(0.5, color="k", lw=0.8, ls="--")
     axes[1].axhline(5.0, color="k", lw=0.8, ls="--")
     axes[0].set(xlabel="modes r", ylabel="probe case: RMS surface error (mm)")
     axes[1].set(xlabel="modes r", ylabel="probe case: W_ef error (%)")
+    axes[1].legend([Line2D([], [], color="k", marker="o"),
+                    Line2D([], [], color="k", marker="s", ls="--")],
+                   ["cables free", "taut cables held (what sensing solves with)"], fontsize=8)
     axes[2].set(xlabel="sampled quadrature points", ylabel="update rate (Hz)")
     for axis in axes:
         axis.grid(alpha=0.3)
