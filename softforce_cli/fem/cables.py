@@ -135,3 +135,8 @@ class CableInputs:
     def displacement_controlled(self) -> np.ndarray:
         """(a,) bool mask of displacement-controlled cables."""
         return np.array([c == "displacement" for c in self.control], dtype=bool)
+
+    def held(self, tensions_n: np.ndarray) -> np.ndarray:
+        """(a,) bool: the displacement-controlled cables that pull at tensions (a,) N, which
+        hold their lengths; a slack one holds nothing."""
+        return self.displacement_controlled & (np.asarray(tensions_n) > 0.0)

@@ -105,7 +105,7 @@ def respond(model: FEModel, case: LoadCase, feature_nodes: np.ndarray,
 def held_cables(case: LoadCase, full: CaseResult) -> np.ndarray:
     """(a,) bool: the case's displacement-controlled cables that pull in the full model's
     answer (a slack one holds nothing)."""
-    return case.inputs.displacement_controlled & (full.equilibrium.cable_tensions_n > 0.0)
+    return case.inputs.held(full.equilibrium.cable_tensions_n)
 
 
 def compare(full: CaseResult, reduced: CaseResult, rest_mm: np.ndarray,

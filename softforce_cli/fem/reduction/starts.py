@@ -140,7 +140,7 @@ def _solved_library(model: ReducedModel, controls: tuple[str, ...], actuations: 
                     ) -> StartLibrary:
     """start_library's solves."""
     scale = np.maximum(np.asarray(high, float) - low, 1e-9)
-    controlled = CableInputs(controls, np.zeros(len(controls))).displacement_controlled
+    inputs = CableInputs(controls, np.zeros(len(controls)))
     retrain = ("its sampling is too loose for this robot; retrain with a smaller ECSW "
                "tolerance (--ecsw-tolerance) or more modes")
     sampled = f"the reduced model ({len(model.reduction.points)} sampled points)"
@@ -160,7 +160,7 @@ def _solved_library(model: ReducedModel, controls: tuple[str, ...], actuations: 
         raise ModelError(f"{sampled} is {off:.2g} mm RMS off its full model at one of its own "
                          f"training actuations ({100 * off / shape:.0f}% of their largest "
                          f"shape, {shape:.3g} mm): {retrain}")
-    entries = [_entry(equilibrium, controlled) for equilibrium in solved]
+    entries = [_entry(equilibrium, inputs) for equilibrium in solved]
     library = _library(np.asarray(actuations, dtype=float), entries, scale)
     if levels < 2:
         return library
@@ -174,21 +174,20 @@ def _solved_library(model: ReducedModel, controls: tuple[str, ...], actuations: 
             last = None
             continue
         grid.append(values)
-        grid_entries.append(_entry(last, controlled))
+        grid_entries.append(_entry(last, inputs))
     return _library(np.vstack([library.inputs, *grid]), entries + grid_entries, scale)
 
 
-def _entry(equilibrium: Equilibrium, displacement_controlled: np.ndarray
-           ) -> tuple[np.ndarray, np.ndarray]:
-    """(q (r,), dq/du (r, a)) of a reduced equilibrium; which cables are
-    displacement-controlled (a,) bool. A slack one (no tension) stays slack for a small
+def _entry(equilibrium: Equilibrium, inputs: CableInputs) -> tuple[np.ndarray, np.ndarray]:
+    """(q (r,), dq/du (r, a)) of a reduced equilibrium, the cables' controls those of
+    `inputs`. A slack displacement-controlled cable (no tension) stays slack for a small
     change of any input: it holds nothing and its own input moves nothing."""
     state = equilibrium.state
     factor = state.space.factorize(state.tangent(equilibrium.cable_tensions_n))
     _, rows = state.cables()
-    slack = displacement_controlled & (equilibrium.cable_tensions_n <= 0.0)
-    sensitivities = input_sensitivities(rows, factor.solve(rows.T),
-                                        displacement_controlled & ~slack)
+    held = inputs.held(equilibrium.cable_tensions_n)
+    slack = inputs.displacement_controlled & ~held
+    sensitivities = input_sensitivities(rows, factor.solve(rows.T), held)
     sensitivities[:, slack] = 0.0
     return state.q, sensitivities
 

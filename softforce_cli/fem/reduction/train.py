@@ -343,12 +343,12 @@ def energy_norms(model: FEModel, basis: np.ndarray, states_mm: np.ndarray,
     full model's tangent (cables' geometric stiffness included) on the basis, its taut
     displacement-controlled cables held."""
     free = basis[model.free_dofs]
-    held = CableInputs(controls, np.zeros(len(controls))).displacement_controlled
+    inputs = CableInputs(controls, np.zeros(len(controls)))
     weights = []
     for x, tensions in zip(states_mm, tensions_n, strict=True):
         _, stiffness = model.internal_forces_and_stiffness(x)
         stiffness = stiffness + model.cable_stiffness(x, tensions)
-        rows = model.cable_jacobian(x)[held & (tensions > 0.0)] @ basis
+        rows = model.cable_jacobian(x)[inputs.held(tensions)] @ basis
         weights.append(energy_weight(free.T @ (stiffness @ free), rows))
     return weights
 
