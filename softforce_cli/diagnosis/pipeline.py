@@ -39,12 +39,12 @@ from softforce_cli.diagnosis.selection import (
     systematic_mm,
     worth_refitting,
 )
-from softforce_cli.diagnosis.sensitivities import column_set
-from softforce_cli.diagnosis.solves import SolveCache, solve_states
+from softforce_cli.diagnosis.sensitivities import ColumnSet, column_set
+from softforce_cli.diagnosis.solves import SolveCache, StateSolutions, solve_states
 from softforce_cli.diagnosis.states import States, group_states, trajectory_segments
 from softforce_cli.diagnosis.support import support_basis
 from softforce_cli.errors import SolverError
-from softforce_cli.model.effects import frame_contexts
+from softforce_cli.model.effects import FrameContext, frame_contexts
 from softforce_cli.model.regions import node_regions
 from softforce_cli.model.robot import Robot
 
@@ -151,6 +151,11 @@ class Diagnosis:
         return self.selected[-1] if self.selected else None
 
     @property
+    def relative_nominal_mm(self) -> float:
+        """The nominal model's held-out RMS residual relative to the static baseline (mm)."""
+        return next(s.heldout.rms_before_mm for s in self.screened if s.relative)
+
+    @property
     def markers(self) -> Field | None:
         """The markers' residual entries (diagnosis.markers), None without markers."""
         return None if self.marker_inputs is None else self.marker_inputs.field
@@ -161,16 +166,119 @@ class Diagnosis:
         return self.marker_floor_mm if screened.channel == "markers" else self.noise_floor_mm
 
 
+class _StopRequestedError(Exception):
+    """A stop was requested: the Diagnosis keeps what was reached (`interrupted`)."""
+
+
+@dataclass(frozen=True, eq=False)
+class _Judge:
+    """What every candidate of one diagnosis is fitted and judged with: the exact model, the
+    first-order inputs at the nominal residual's entries, the trajectory segments left out in
+    turn, the noise floor (mm), the effective and actual frame counts, and the run's progress
+    and stop callbacks."""
+
+    exact: ExactModel
+    inputs: Inputs
+    nominal: Field
+    segments: np.ndarray
+    floor: float
+    n_eff: float
+    frames: int
+    report: Stage
+    stop_requested: Callable[[], bool]
+
+    @property
+    def table(self) -> Table | None:
+        return self.exact.basis.table
+
+    def check_stop(self) -> None:
+        if self.stop_requested():
+            raise _StopRequestedError
+
+    def screen(self, candidate: Candidate, relative: bool,
+               start: np.ndarray | None = None) -> Screened:
+        """A candidate on the first-order model of the point clouds' residuals."""
+        return _screen(candidate, self.inputs, self.segments, relative, self.n_eff, self.frames,
+                       start=start)
+
+    def final(self, screened: Screened, baseline: HeldOut | None = None) -> Final:
+        """A screened candidate refitted on the exact model, accepted when it clearly improves
+        on the nominal model (or on `baseline`) and agrees with the table."""
+        exact, segments, nominal = self.exact, self.segments, self.nominal
+
+        # the refit stops on the residuals' own scatter; the reported interval also counts
+        # how far the segments disagree (selection.confidence_intervals)
+        def half_widths(field: Field, jacobian: np.ndarray, values: np.ndarray) -> np.ndarray:
+            interval = confidence_intervals(field, jacobian, values, self.n_eff, self.frames)
+            return 0.5 * (interval[:, 1] - interval[:, 0])
+
+        fitted = refit(exact, screened.candidate, screened.values, screened.relative,
+                       half_widths, self.stop_requested)
+        inputs = exact.basis.inputs_for(fitted.field)
+        result = exact_heldout(fitted, inputs, segments, nominal, screened.relative)
+        relative = result if screened.relative else exact_heldout(fitted, inputs, segments,
+                                                                  nominal, True)
+        # the residual at the values (one first-order step from the last exact evaluation)
+        left = fitted.field.mean_mm - fitted.jacobian @ (fitted.values - fitted.evaluated)
+        field, jacobian = judged_residuals(fitted.field, left, fitted.jacobian,
+                                           screened.relative)
+        ci = confidence_intervals(field, jacobian, fitted.values, self.n_eff, self.frames,
+                                  segments)
+        table = fitted.candidate.table_misfit_mm(fitted.values, inputs)
+        return Final(screened, fitted, result, ci,
+                     clear_improvement(result, self.floor, baseline)
+                     and _table_agrees(table, self.table), table, relative)
+
+    def refit(self, result: Diagnosis, candidates: list[Screened]) -> None:
+        """Refit candidates into result.finals (a failed solve noted in result.not_refitted);
+        _StopRequestedError when a stop is requested."""
+        for i, screened in enumerate(candidates):
+            self.check_stop()
+            self.report("refit", i, len(candidates))
+            try:
+                result.finals.append(self.final(screened))
+            except SolverError as error:  # no equilibrium with this effect near the nominal
+                result.not_refitted.append(f"{screened.candidate.label}: {error}")
+        self.report("refit", len(candidates), len(candidates))
+
+
 def diagnose_observations(robot: Robot, observations: Observations, cache: SolveCache,
                           stage: Stage | None = None,
                           stop_requested: Callable[[], bool] = lambda: False) -> Diagnosis:
     """Screen every hypothesis, refit the best, choose what the data supports. Returns the
     Diagnosis reached so far (interrupted) when stop_requested() turns true."""
-    report = stage or (lambda name, done, total: None)
     result = Diagnosis(robot, observations)
+    report = stage or (lambda name, done, total: None)
+    try:
+        contexts = _states(result)
+        result.stage = "solves"
+        columns = column_set(robot)
+        solutions = solve_states(robot, result.states.actuation, cache, columns,
+                                 lambda done, total: report("FE states", done, total),
+                                 stop_requested)
+        if solutions is None:
+            raise _StopRequestedError
+        judge = _nominal(result, solutions, columns, cache, contexts, report, stop_requested)
+        result.stage = "screening"
+        _screen_hypotheses(result, judge)
+        _screen_markers(result, solutions, judge.exact.basis, judge.segments, judge.frames)
+        result.stage = "refit"
+        _first_effects(result, judge)
+        _select(result, judge)
+        result.stage = "verdict"
+        _verdict(result, judge, solutions)
+        result.stage = "done"
+    except _StopRequestedError:
+        result.interrupted = True
+    return result
+
+
+def _states(result: Diagnosis) -> tuple[FrameContext, ...]:
+    """Group the frames into states of equal inputs (result.states); the frames' contexts.
+    DiagnosisError when the recordings cannot tell a model from its missing physics."""
+    observations = result.observations
     contexts = tuple(frame_contexts(observations.times_s, observations.actuations))
-    states = group_states(contexts)
-    result.states = states
+    states = result.states = group_states(contexts)
     if states.count < 2 or np.ptp(states.actuation, axis=0).max(initial=0.0) <= 0.0:
         raise DiagnosisError(
             f"{', '.join(observations.recordings)}: the actuation never changes, and a model "
@@ -180,126 +288,132 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
         raise DiagnosisError(
             f"{', '.join(observations.recordings)}: no input is held for two frames or more, "
             "so the camera's noise floor cannot be measured; record holds between the moves")
-    columns = column_set(robot)
-    result.stage = "solves"
-    solutions = solve_states(robot, states.actuation, cache, columns,
-                             lambda done, total: report("FE states", done, total),
-                             stop_requested)
-    if solutions is None:
-        result.interrupted = True
-        return result
+    return contexts
+
+
+def _nominal(result: Diagnosis, solutions: StateSolutions, columns: ColumnSet,
+             cache: SolveCache, contexts: tuple[FrameContext, ...], report: Stage,
+             stop_requested: Callable[[], bool]) -> _Judge:
+    """The plate's screening, the nominal model's residuals (result.nominal, uncorrected,
+    predicted_mm), the hypotheses' first-order basis and the noise floor, as a _Judge."""
     result.stage = "plate contacts"
     support = support_basis(solutions, cache,
                             lambda done, total: report("plate contacts", done, total),
                             stop_requested)
     if stop_requested():
-        result.interrupted = True
-        return result
+        raise _StopRequestedError
+    robot, observations, states = result.robot, result.observations, result.states
     points = [f.points_mm for f in observations.frames]
     mesh = robot.mesh
-    result.predicted_mm = solutions.predicted_mm
     camera = observations.robot_from_camera.translation_mm
-    nominal = measure(points, solutions.predicted_mm, states.of_frame, mesh.surface_nodes,
-                      mesh.surface_faces, camera)
-    uncorrected = nominal if solutions.given_mm is None else measure(
-        points, solutions.given_mm, states.of_frame, mesh.surface_nodes, mesh.surface_faces,
-        camera)
-    result.nominal, result.uncorrected = nominal, uncorrected
+
+    def residuals(predicted_mm: np.ndarray) -> Field:
+        return measure(points, predicted_mm, states.of_frame, mesh.surface_nodes,
+                       mesh.surface_faces, camera)
+
+    result.predicted_mm = solutions.predicted_mm
+    nominal = result.nominal = residuals(solutions.predicted_mm)
+    result.uncorrected = nominal if solutions.given_mm is None else residuals(solutions.given_mm)
     frames = len(observations.frames)
     recordings = np.array([f.recording for f in observations.frames])
-    segments = trajectory_segments(states, recordings)
-    n_eff = effective_sample_size(nominal, frames)
-    cables = tuple(spec.name for spec in robot.cable_specs)
     table = observed_table((f.table_plane for f in observations.frames), mesh.nodes_mm)
     basis = build_basis(solutions.predicted_mm, solutions.mesh_columns, mesh.surface_faces,
-                        columns, states.of_frame, contexts, cables,
+                        columns, states.of_frame, contexts,
+                        tuple(spec.name for spec in robot.cable_specs),
                         observations.robot_from_camera, states.actuation, table, support)
     # the physics' own fields are cleared from the scatter first: drift within a hold is not
     # camera noise (selection.noise_floor_mm)
-    floor = noise_floor_mm(nominal, states.of_frame, basis.normal_columns)
-    result.noise_floor_mm = floor
-    inputs = basis.inputs_for(nominal)
-    result.stage = "screening"
-    tasks = [(Candidate((h,)), relative) for h in hypotheses(robot, columns, support)
+    result.noise_floor_mm = noise_floor_mm(nominal, states.of_frame, basis.normal_columns)
+    return _Judge(ExactModel(solutions, states, contexts, points, basis),
+                  basis.inputs_for(nominal), nominal, trajectory_segments(states, recordings),
+                  result.noise_floor_mm, effective_sample_size(nominal, frames), frames, report,
+                  stop_requested)
+
+
+def _screen_hypotheses(result: Diagnosis, judge: _Judge) -> None:
+    """Every hypothesis on the first-order model, relative (and absolute where it may be
+    static: hypotheses.ABSOLUTE), into result.screened, best first."""
+    robot = result.robot
+    tasks = [(Candidate((h,)), relative)
+             for h in hypotheses(robot, judge.exact.basis.column_set, judge.exact.basis.support)
              for relative in (True, False) if relative or h.name in ABSOLUTE]
     for i, (candidate, relative) in enumerate(tasks):
-        if stop_requested():
-            result.interrupted = True
-            return result
-        report("screening", i, len(tasks))
-        result.screened.append(_screen(candidate, inputs, segments, relative, n_eff, frames))
-    report("screening", len(tasks), len(tasks))
-    result.screened.sort(key=lambda s: -excess_share(s.heldout, floor))
-    _screen_markers(result, solutions, basis, segments, frames)
-    exact = ExactModel(solutions, states, contexts, points, basis)
-    result.stage = "refit"
+        judge.check_stop()
+        judge.report("screening", i, len(tasks))
+        result.screened.append(judge.screen(candidate, relative))
+    judge.report("screening", len(tasks), len(tasks))
+    result.screened.sort(key=lambda s: -excess_share(s.heldout, judge.floor))
+
+
+def _first_effects(result: Diagnosis, judge: _Judge) -> None:
+    """The best screened candidates refitted on the exact model into result.finals (best
+    first), and, when none of them names the mismatch while a structured residual remains,
+    the next few (fallback_candidates)."""
+    floor, table = judge.floor, judge.table
+    relative_nominal = result.relative_nominal_mm
+    structured = _structured(judge.nominal.rms(), relative_nominal, floor)
     agreeing = [s for s in _best_per_effect(result.screened)
                 if _table_agrees(s.table_misfit_mm, table)]
     best = [s for s in agreeing if worth_refitting(s.heldout, floor)][:REFIT_COUNT]
-    relative_nominal = next(s.heldout.rms_before_mm for s in result.screened if s.relative)
-    if not best and _structured(nominal.rms(), relative_nominal, floor):
+    if not best and structured:
         # heading for `unexplained`: a large nonlinear effect may screen short of the floor
         # in size as well as in share (30% more gravity sags the Diamond 64% more, which
         # its first-order column explains 0.26 mm of, floor 0.36): the exact model judges
         # the best candidate that generalises (rule 1) with a quarter of the excess
         best = [s for s in agreeing if worth_refitting(s.heldout, floor, size=False)
                 ][:REFIT_COUNT]
-    if not _refit(result, exact, best, nominal, segments, floor, n_eff, frames, report,
-                  stop_requested):
-        return result
-    if (not any(names_the_mismatch(f, relative_nominal, floor) for f in result.finals)
-            and _structured(nominal.rms(), relative_nominal, floor)):
+    judge.refit(result, best)
+    if structured and not any(names_the_mismatch(f, relative_nominal, floor)
+                              for f in result.finals):
         # still heading for `unexplained`: the refit failed or fell short of a name (a
         # softer north arm fits part of a south arm twice as stiff, which screens just
         # behind it and is named once refitted): the exact model judges the next few
-        more = fallback_candidates(result.screened, best, table)
-        if not _refit(result, exact, more, nominal, segments, floor, n_eff, frames, report,
-                      stop_requested):
-            return result
+        judge.refit(result, fallback_candidates(result.screened, best, table))
     result.finals.sort(key=lambda f: -excess_share(f.heldout, floor))
+
+
+def _select(result: Diagnosis, judge: _Judge) -> None:
+    """result.selected: the first accepted effect that names the mismatch (or fits part of
+    it) with a second effect where one clearly helps; a camera only the markers see when the
+    clouds find nothing; a rival the exact model prefers, once refitted."""
+    floor, relative_nominal = judge.floor, result.relative_nominal_mm
     # one that explains the mismatch before one that fits part of it (the verdict's rule)
     accepted = sorted((f for f in result.finals if f.accepted),
                       key=lambda f: not names_the_mismatch(f, relative_nominal, floor))
     if accepted:
-        result.stage = "second effect"
-        result.selected = [accepted[0]]
-        second = _second(exact, result, accepted[0], inputs, nominal, segments, floor, n_eff,
-                         frames, report, stop_requested)
-        if second is not None:
-            result.selected.append(second)
-    if not result.selected and not _structured(nominal.rms(), relative_nominal, floor):
+        _select_first(result, judge, accepted[0])
+    if not result.selected and not _structured(judge.nominal.rms(), relative_nominal, floor):
         # the clouds find nothing: a camera turned about the vertical or moved sideways
         # slides the surfaces along themselves, which only the markers see
-        camera = _camera_from_markers(result, exact, inputs, relative_nominal, floor)
+        camera = _camera_from_markers(result, judge)
         result.selected = [] if camera is None else [camera]
     # (a rival of both selected effects is refitted once)
     rivals = list(dict.fromkeys(s for chosen in result.selected
                                 if names_the_mismatch(chosen, relative_nominal, floor)
-                                for s in screened_rivals(result, chosen, floor, table)))
-    if rivals:
-        # a group says the data cannot tell them apart: the exact model judges the rivals
-        # the screening could not separate from a named effect (a plate under the arms
-        # screens as well as a lighter body, which the exact model leaves half the change
-        # across frames unexplained)
-        result.stage = "rivals"
-        if not _refit(result, exact, rivals, nominal, segments, floor, n_eff, frames, report,
-                      stop_requested):
-            return result
-        better = better_rival(result, relative_nominal, floor)
-        if better is not None:
-            # the exact model prefers a rival the screening had ranked behind (a base of
-            # 5 N/mm screens behind a softer body, and refitted leaves 0.33 mm to its 0.38):
-            # it is the first effect, and the second is sought anew with it
-            result.selected = [better]
-            result.stage = "second effect"
-            second = _second(exact, result, better, inputs, nominal, segments, floor, n_eff,
-                             frames, report, stop_requested)
-            if second is not None:
-                result.selected.append(second)
-    result.stage = "verdict"
-    _verdict(result, floor, basis, solutions, segments, n_eff)
-    result.stage = "done"
-    return result
+                                for s in screened_rivals(result, chosen, floor, judge.table)))
+    if not rivals:
+        return
+    # a group says the data cannot tell them apart: the exact model judges the rivals the
+    # screening could not separate from a named effect (a plate under the arms screens as
+    # well as a lighter body, which the exact model leaves half the change across frames
+    # unexplained)
+    result.stage = "rivals"
+    judge.refit(result, rivals)
+    better = better_rival(result, relative_nominal, floor)
+    if better is not None:
+        # the exact model prefers a rival the screening had ranked behind (a base of 5 N/mm
+        # screens behind a softer body, and refitted leaves 0.33 mm to its 0.38): it is the
+        # first effect, and the second is sought anew with it
+        _select_first(result, judge, better)
+
+
+def _select_first(result: Diagnosis, judge: _Judge, first: Final) -> None:
+    """result.selected: `first`, and a second effect with it where one clearly helps."""
+    result.stage = "second effect"
+    result.selected = [first]
+    second = _second(result, judge, first)
+    if second is not None:
+        result.selected.append(second)
 
 
 def _screen(candidate: Candidate, inputs: Inputs, segments: np.ndarray, relative: bool,
@@ -359,15 +473,15 @@ def _markers_accept(screened: Screened, marker_floor_mm: float, table: Table | N
             and _table_agrees(screened.table_misfit_mm, table))
 
 
-def _camera_from_markers(result: Diagnosis, exact: ExactModel, inputs: Inputs,
-                         relative_nominal: float, floor: float) -> Final | None:
+def _camera_from_markers(result: Diagnosis, judge: _Judge) -> Final | None:
     """camera_seen_by_markers as a Final: its exact prediction is the nominal one seen
     through the camera effect (no FE solve), its held-out figures the markers'."""
-    nominal = result.nominal
+    exact = judge.exact
 
     def leaves_clouds_explained(screened: Screened) -> bool:
-        shift = screened.candidate.shift(screened.values, inputs)
-        return not _structured(nominal.rms(shift=shift), relative_nominal, floor)
+        shift = screened.candidate.shift(screened.values, judge.inputs)
+        return not _structured(judge.nominal.rms(shift=shift), result.relative_nominal_mm,
+                               judge.floor)
 
     screened = camera_seen_by_markers(result.marker_screened, result.marker_floor_mm,
                                       exact.basis.table, leaves_clouds_explained)
@@ -379,25 +493,6 @@ def _camera_from_markers(result: Diagnosis, exact: ExactModel, inputs: Inputs,
     jacobian = shift_jacobian(candidate, exact.basis.inputs_for(field), values)
     return Final(screened, Refit(candidate, values, field, jacobian, prediction, 0, values),
                  screened.heldout, screened.ci95, True, screened.table_misfit_mm)
-
-
-def _refit(result: Diagnosis, exact: ExactModel, candidates: list[Screened], nominal: Field,
-           segments: np.ndarray, floor: float, n_eff: float, frames: int, report,
-           stop_requested) -> bool:
-    """Refit candidates on the exact model into result.finals (a failed solve is noted in
-    result.not_refitted); False when a stop was requested (result marked interrupted)."""
-    for i, screened in enumerate(candidates):
-        if stop_requested():
-            result.interrupted = True
-            return False
-        report("refit", i, len(candidates))
-        try:
-            result.finals.append(_final(exact, screened, nominal, segments, floor, n_eff,
-                                        frames, stop_requested))
-        except SolverError as error:  # no equilibrium with this effect near the nominal one
-            result.not_refitted.append(f"{screened.candidate.label}: {error}")
-    report("refit", len(candidates), len(candidates))
-    return True
 
 
 def fallback_candidates(screened: list[Screened], tried: list[Screened],
@@ -494,31 +589,6 @@ def _best_per_effect(screened: list[Screened]) -> list[Screened]:
     return list(best.values())
 
 
-def _final(exact: ExactModel, screened: Screened, nominal: Field, segments: np.ndarray,
-           floor: float, n_eff: float, frames: int, stop_requested,
-           baseline: HeldOut | None = None) -> Final:
-    # the refit stops on the residuals' own scatter; the reported interval also counts how
-    # far the segments disagree (selection.confidence_intervals)
-    def half_widths(field: Field, jacobian: np.ndarray, values: np.ndarray) -> np.ndarray:
-        interval = confidence_intervals(field, jacobian, values, n_eff, frames)
-        return 0.5 * (interval[:, 1] - interval[:, 0])
-
-    fitted = refit(exact, screened.candidate, screened.values, screened.relative, half_widths,
-                   stop_requested)
-    inputs = exact.basis.inputs_for(fitted.field)
-    result = exact_heldout(fitted, inputs, segments, nominal, screened.relative)
-    relative = result if screened.relative else exact_heldout(fitted, inputs, segments, nominal,
-                                                              True)
-    # the residual at the values (one first-order step from the last exact evaluation)
-    left = fitted.field.mean_mm - fitted.jacobian @ (fitted.values - fitted.evaluated)
-    field, jacobian = judged_residuals(fitted.field, left, fitted.jacobian, screened.relative)
-    ci = confidence_intervals(field, jacobian, fitted.values, n_eff, frames, segments)
-    table = fitted.candidate.table_misfit_mm(fitted.values, inputs)
-    return Final(screened, fitted, result, ci,
-                 clear_improvement(result, floor, baseline)
-                 and _table_agrees(table, exact.basis.table), table, relative)
-
-
 def exact_heldout(fitted: Refit, inputs: Inputs, segments: np.ndarray, nominal: Field,
                   relative: bool) -> HeldOut:
     """A refitted candidate's held-out error in either mode (inputs at its exact residual's
@@ -527,8 +597,7 @@ def exact_heldout(fitted: Refit, inputs: Inputs, segments: np.ndarray, nominal: 
                     relative, jacobian=fitted.jacobian, nominal=nominal)
 
 
-def _second(exact, result: Diagnosis, first: Final, inputs, nominal, segments, floor, n_eff,
-            frames, report, stop_requested) -> Final | None:
+def _second(result: Diagnosis, judge: _Judge, first: Final) -> Final | None:
     """The best second effect, screened together with the first and refitted, accepted when
     it clearly improves on the first alone: in the first's mode, then, for a first effect
     judged relative to the static baseline, in the absolute one among the effects screened
@@ -537,23 +606,19 @@ def _second(exact, result: Diagnosis, first: Final, inputs, nominal, segments, f
     another law had named the slack alone). Other pairs accepted too are kept in
     result.second_rivals (groups)."""
     relative = first.screened.relative
-    accepted = _second_in_mode(exact, result, first, inputs, nominal, segments, floor, n_eff,
-                               frames, report, stop_requested, relative,
-                               first.screened.heldout, first.heldout)
-    if not accepted and relative and not stop_requested():
-        alone = _screen(first.candidate, inputs, segments, False, n_eff, frames,
-                        start=first.values)
+    accepted = _second_in_mode(result, judge, first, relative, first.screened.heldout,
+                               first.heldout)
+    if not accepted and relative and not judge.stop_requested():
+        alone = judge.screen(first.candidate, False, start=first.values)
+        exact = judge.exact
         alone_exact = exact_heldout(first.refit, exact.basis.inputs_for(first.refit.field),
-                                    segments, nominal, False)
-        accepted = _second_in_mode(exact, result, first, inputs, nominal, segments, floor,
-                                   n_eff, frames, report, stop_requested, False,
-                                   alone.heldout, alone_exact)
+                                    judge.segments, judge.nominal, False)
+        accepted = _second_in_mode(result, judge, first, False, alone.heldout, alone_exact)
     result.second_rivals = accepted[1:]
     return accepted[0] if accepted else None
 
 
-def _second_in_mode(exact, result: Diagnosis, first: Final, inputs, nominal, segments, floor,
-                    n_eff, frames, report, stop_requested, relative: bool,
+def _second_in_mode(result: Diagnosis, judge: _Judge, first: Final, relative: bool,
                     screened_alone: HeldOut, exact_alone: HeldOut) -> list[Final]:
     """_second in one mode: the next SECOND_CANDIDATES effects screened with the first, those
     worth it refitted (up to SECOND_REFITS: the first-order model under-explains a second
@@ -566,21 +631,20 @@ def _second_in_mode(exact, result: Diagnosis, first: Final, inputs, nominal, seg
               and s.candidate.hypotheses[0].name != taken.name][:SECOND_CANDIDATES]
     pairs = []
     for i, other in enumerate(others):
-        report("second effect", i, len(others))
+        judge.report("second effect", i, len(others))
         pair = Candidate((taken, *other.candidate.hypotheses))
-        start = np.concatenate([first.values, other.values])
-        pairs.append(_screen(pair, inputs, segments, relative, n_eff, frames, start=start))
-    report("second effect", len(others), len(others))
-    worth = sorted((p for p in pairs if _table_agrees(p.table_misfit_mm, exact.basis.table)
-                    and worth_refitting(p.heldout, floor, baseline=screened_alone)),
+        pairs.append(judge.screen(pair, relative,
+                                  start=np.concatenate([first.values, other.values])))
+    judge.report("second effect", len(others), len(others))
+    worth = sorted((p for p in pairs if _table_agrees(p.table_misfit_mm, judge.table)
+                    and worth_refitting(p.heldout, judge.floor, baseline=screened_alone)),
                    key=lambda p: p.heldout.rms_after_mm)[:SECOND_REFITS]
     accepted = []
     for pair in worth:
-        if stop_requested():
+        if judge.stop_requested():
             break
         try:
-            final = _final(exact, pair, nominal, segments, floor, n_eff, frames,
-                           stop_requested, baseline=exact_alone)
+            final = judge.final(pair, baseline=exact_alone)
         except SolverError as error:
             result.not_refitted.append(f"{pair.candidate.label}: {error}")
             continue
@@ -589,12 +653,13 @@ def _second_in_mode(exact, result: Diagnosis, first: Final, inputs, nominal, seg
     return sorted(accepted, key=lambda f: f.heldout.rms_after_mm)
 
 
-def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
-             n_eff: float) -> None:
+def _verdict(result: Diagnosis, judge: _Judge, solutions: StateSolutions) -> None:
+    """result.verdict, groups, location and evidence from what was selected."""
+    floor, basis, segments = judge.floor, judge.exact.basis, judge.segments
     nominal = result.nominal
     final = result.final_field
     before, after = nominal.rms(), final.rms()
-    relative_before = next(s.heldout.rms_before_mm for s in result.screened if s.relative)
+    relative_before = result.relative_nominal_mm
     last = result.selected[-1] if result.selected else None
     relative_after = (last.relative_heldout.rms_after_mm
                       if last is not None and last.relative_heldout is not None
@@ -650,7 +715,7 @@ def _verdict(result: Diagnosis, floor: float, basis: Basis, solutions, segments,
         "frames_skipped": result.observations.skipped,
         "states": result.states.count,
         "segments": int(segments.max() + 1),
-        "effective_frames": round(n_eff, 1),
+        "effective_frames": round(judge.n_eff, 1),
         "element": result.robot.element_name,
         "prediction_element": solutions.robot.element_name,
         "mesh_correction_rms_mm": round(float(np.sqrt(np.mean(np.sum(corrections**2,
