@@ -258,35 +258,58 @@ def occluded_tips(objects_mm: np.ndarray, object_labels: np.ndarray, touching: n
     tips = starts[met] + depth[:, None] * directions[met]
     if camera_mm is None or not met.any():
         return tips
-    # the camera sees the half of a rod that faces it, so that line lies about one radius
-    # from the rod's axis, towards the camera (4.5-5 mm for the sample's 5 mm probes); the
-    # radius is the object's half-width across the view (its points spread evenly across)
-    objects_met = which[met]
-    towards = np.asarray(camera_mm, dtype=float) - tips
-    towards -= np.einsum("ni,ni->n", towards, axes[met])[:, None] * axes[met]
+    on_axis = _onto_axes(tips, axes[met], offsets, labels, which[met],
+                         np.asarray(camera_mm, dtype=float))
+    return _onto_faces(on_axis, directions[met], robot[inside], owner[inside], met, robot_tree,
+                       radius)
+
+
+def _onto_axes(tips: np.ndarray, axes: np.ndarray, offsets: np.ndarray, labels: np.ndarray,
+               objects: np.ndarray, camera_mm: np.ndarray) -> np.ndarray:
+    """(t, 3) the tips (t, 3), met on the line along each object's seen side, moved onto its
+    axis (t, 3): objects (t,) the objects' labels, offsets (k, 3) and labels (k,) every object
+    point's offset from its object's mean and its object, camera_mm (3,).
+
+    The camera sees the half of a rod that faces it, so that line lies about one radius
+    from the rod's axis, towards the camera (4.5-5 mm for the sample's 5 mm probes); the
+    radius is the object's half-width across the view (its points spread evenly across)."""
+    count = int(labels.max(initial=-1)) + 1
+    sizes = np.maximum(np.bincount(labels, minlength=count), 1)
+    towards = camera_mm - tips
+    towards -= np.einsum("ni,ni->n", towards, axes)[:, None] * axes
     norms = np.linalg.norm(towards, axis=1, keepdims=True)
     towards = np.divide(towards, norms, out=np.zeros_like(towards), where=norms > 0)
     sideways = np.zeros((count, 3))
-    sideways[objects_met] = np.cross(axes[met], towards)
+    sideways[objects] = np.cross(axes, towards)
     lateral = np.einsum("ni,ni->n", offsets, sideways[labels])
-    half_widths = np.sqrt(3.0 * np.bincount(labels, lateral**2, count) / np.maximum(sizes, 1))
+    half_widths = np.sqrt(3.0 * np.bincount(labels, lateral**2, count) / sizes)
     depths = np.sqrt(np.maximum(half_widths[labels]**2 - lateral**2, 0.0))
-    shifts = np.bincount(labels, depths, count) / np.maximum(sizes, 1)
-    on_axis = tips - shifts[objects_met, None] * towards
-    # the seen side's line meets a face pressed obliquely at another depth than the axis does
-    # (3.5 mm off for a rod 38 degrees from the face's normal): move along the axis to the
-    # plane of the robot points within 2 r_search of where the line met them, by at most
-    # r_search (a patch over an edge gives a rough plane)
-    hit_means = _grouped_moments(robot[inside], owner[inside], len(rows))[0][met]
+    shifts = np.bincount(labels, depths, count) / sizes
+    return tips - shifts[objects, None] * towards
+
+
+def _onto_faces(tips: np.ndarray, directions: np.ndarray, hits_mm: np.ndarray,
+                hit_owners: np.ndarray, met: np.ndarray, robot_tree: cKDTree, radius: float
+                ) -> np.ndarray:
+    """(t, 3) the tips (t, 3) moved along their objects' directions (t, 3) to the plane of the
+    robot points around where each line met the robot: hits_mm (h, 3) those robot points,
+    hit_owners (h,) the candidate object of each (its index in met (m,) bool, the candidates
+    that met the robot), radius the contact radius (mm).
+
+    The seen side's line meets a face pressed obliquely at another depth than the axis does
+    (3.5 mm off for a rod 38 degrees from the face's normal): move along the axis to the
+    plane of the robot points within 2 r_search of where the line met them, by at most
+    r_search (a patch over an edge gives a rough plane)."""
+    hit_means = _grouped_moments(hits_mm, hit_owners, len(met))[0][met]
     around = robot_tree.query_ball_point(hit_means, 2 * radius)  # each holds the hits
     patch_means, patch_covariances = _grouped_moments(
         robot_tree.data[np.concatenate(around).astype(np.int64)],
         np.repeat(np.arange(len(around)), [len(n) for n in around]), len(around))
     normals = np.linalg.eigh(patch_covariances)[1][:, :, 0]
-    cosines = np.einsum("ni,ni->n", directions[met], normals)
-    steps = np.einsum("ni,ni->n", patch_means - on_axis, normals) / np.where(
+    cosines = np.einsum("ni,ni->n", directions, normals)
+    steps = np.einsum("ni,ni->n", patch_means - tips, normals) / np.where(
         np.abs(cosines) > 1e-9, cosines, np.inf)  # an axis along the face: no step
-    return on_axis + np.clip(steps, -radius, radius)[:, None] * directions[met]
+    return tips + np.clip(steps, -radius, radius)[:, None] * directions
 
 
 def _grouped_moments(points: np.ndarray, labels: np.ndarray, count: int
