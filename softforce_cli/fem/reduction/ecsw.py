@@ -154,37 +154,23 @@ def sparse_nnls(C: np.ndarray, b: np.ndarray, tolerance: float = ECSW_TOLERANCE,
     products = C.T @ C if m <= GRAM_COLUMNS else None
     scale = 1e-14 * float(np.abs(d).max(initial=0.0))
     active: list[int] = []
-    # C^T c_j of each column that entered, in a slot of a buffer that grows by doubling; a
-    # column that leaves frees its slot (weight 0) for the next one: compacting the (m, s)
-    # buffer at every exit would copy hundreds of MB each time
-    buffer = np.empty((m, min(limit, 64)))
-    slot_weights = np.zeros(buffer.shape[1])
-    slots: list[int] = []
-    free: list[int] = []
-    used = 0
+    slots: list[int] = []  # each active column's slot in `entered`
+    entered = _EnteredColumns(m, limit)
     factor = _GramCholesky()
     weights = np.zeros(0)
     residual2 = bb
     for _ in range(3 * m):
         if residual2 <= target or len(active) >= limit:
             break
-        gradient = d - buffer[:, :used] @ slot_weights[:used]
+        gradient = d - entered.product()
         gradient[active] = -np.inf
         best = int(np.argmax(gradient))
         if gradient[best] <= scale:
             break  # optimal: no element lowers the residual
-        if free:
-            slot = free.pop()
-        else:
-            if used == buffer.shape[1]:
-                grow = min(used, limit)
-                buffer = np.hstack([buffer, np.empty((m, grow))])
-                slot_weights = np.r_[slot_weights, np.zeros(grow)]
-            slot, used = used, used + 1
-        buffer[:, slot] = products[:, best] if products is not None else C.T @ C[:, best]
+        slot = entered.add(products[:, best] if products is not None else C.T @ C[:, best])
         active.append(best)
         slots.append(slot)
-        factor.append(buffer[active, slot], float(d[best]))
+        factor.append(entered.columns[active, slot], float(d[best]))
         weights = np.append(weights, 0.0)
         while True:
             trial = factor.solve()
@@ -198,8 +184,7 @@ def sparse_nnls(C: np.ndarray, b: np.ndarray, tolerance: float = ECSW_TOLERANCE,
             keep = weights > 1e-14 * max(float(weights.max(initial=0.0)), 1e-300)
             keep[np.argmin(np.where(falling, weights, np.inf))] = False
             for leaving in np.flatnonzero(~keep)[::-1]:
-                slot_weights[slots[leaving]] = 0.0
-                free.append(slots[leaving])
+                entered.release(slots[leaving])
                 factor.remove(int(leaving))
             index = np.flatnonzero(keep)
             active = [active[i] for i in index]
@@ -207,7 +192,7 @@ def sparse_nnls(C: np.ndarray, b: np.ndarray, tolerance: float = ECSW_TOLERANCE,
             weights = weights[index]
             if not active:
                 break
-        slot_weights[slots] = weights
+        entered.weights[slots] = weights
         residual2 = max(bb - float(weights @ d[active]), 0.0) if active else bb
         if progress is not None:
             progress(len(active), limit)
@@ -215,6 +200,42 @@ def sparse_nnls(C: np.ndarray, b: np.ndarray, tolerance: float = ECSW_TOLERANCE,
     residual = b - C[:, active] @ weights if active else b
     return Sampling(np.asarray(active, dtype=np.int64)[order], weights[order],
                     float(np.linalg.norm(residual) / max(np.sqrt(bb), 1e-300)))
+
+
+class _EnteredColumns:
+    """The columns C^T c_j (m,) of C^T C of every column j that entered the active set, each
+    in a slot of a buffer that grows by doubling, with its weight. A column that leaves
+    frees its slot (weight 0) for the next one: compacting the (m, s) buffer at every exit
+    would copy hundreds of MB each time."""
+
+    def __init__(self, m: int, limit: int) -> None:
+        self.limit = limit
+        self.columns = np.empty((m, min(limit, 64)))
+        self.weights = np.zeros(self.columns.shape[1])
+        self.used = 0
+        self.free: list[int] = []
+
+    def product(self) -> np.ndarray:
+        """(m,) C^T C w for the active weights w."""
+        return self.columns[:, :self.used] @ self.weights[:self.used]
+
+    def add(self, column: np.ndarray) -> int:
+        """Store a column that enters (weight 0 until set); returns its slot."""
+        if self.free:
+            slot = self.free.pop()
+        else:
+            if self.used == self.columns.shape[1]:
+                grow = min(self.used, self.limit)
+                self.columns = np.hstack([self.columns, np.empty((len(self.columns), grow))])
+                self.weights = np.r_[self.weights, np.zeros(grow)]
+            slot, self.used = self.used, self.used + 1
+        self.columns[:, slot] = column
+        return slot
+
+    def release(self, slot: int) -> None:
+        """A column left the active set: its slot is reused by the next one."""
+        self.weights[slot] = 0.0
+        self.free.append(slot)
 
 
 class _GramCholesky:
