@@ -12,6 +12,7 @@ a rerun continues where the last stopped. `--table` prints the markdown table of
 
     .venv/bin/python benchmarks/study_diagnosis.py [--cases NAME,...] [--seeds 3]
         [--first-seed 1] [--redo] [--recordings-only] [--table] [--markers] [--self]
+        [--converged]
 
 --markers: the recordings publish the robot's nine markers too (/markers, 0.5 mm noise), as
 a setup calibrated from markers would; their cases are kept as NAME+markers. The sensor's
@@ -20,6 +21,11 @@ images are the same as without (simulate draws the markers' noise either way).
 --self: the truth is the estimator's own model (the coarse mesh with quadratic elements and
 the robot file's law) instead of the locking-free body on another mesh, cases NAME+self:
 what goes wrong there is the method's, not the mesh's.
+
+--converged: the truth is closer to the mesh-converged body than the 6.5 mm P2 one: the
+P2-P0 element on the 4.8 mm mesh (sample_data/diamond_fine, docs/locking.md's reference,
+sagging 14.55 mm under gravity where the 6.5 mm P2 body sags 13.18 and the coarse P2 model
+12.84, corotational), cases NAME+converged.
 """
 
 from __future__ import annotations
@@ -41,6 +47,7 @@ from softforce_cli.sim.simulate import truth_path_for
 ROOT = Path(__file__).resolve().parents[1]
 COARSE = ROOT / "sample_data" / "diamond" / "diamond.toml"
 TRUTH_ROBOT = ROOT / "sample_data" / "diamond_truth" / "diamond.toml"
+FINE = ROOT / "sample_data" / "diamond_fine" / "diamond.toml"
 FOLDER = ROOT / "out" / "study_diagnosis"
 RESULTS = FOLDER / "results.jsonl"
 TIMELINE = (([0, 0, 0, 0], 2), ([3, 0, 0, 0], 2), ([6, 0, 0, 0], 3), ([9, 0, 0, 0], 2),
@@ -112,24 +119,34 @@ MARKED = "+markers"
 # and the robot file's law: no discretisation gap, camera noise only) is named with this
 # suffix: what is wrong there is the method's, not the mesh's.
 SELF = "+self"
+# A case whose truth is the converged body (P2-P0 on the 4.8 mm mesh) is named with this
+# suffix.
+CONVERGED = "+converged"
 MARKERS_TOML = "[markers]\npublish = true\nsigma_mm = 0.5\n\n"
 
 
 def plain_case(case: str) -> str:
     """The library's case a study case is a variant of (without its suffixes)."""
-    return case.removesuffix(SELF).removesuffix(MARKED)
+    return case.removesuffix(CONVERGED).removesuffix(SELF).removesuffix(MARKED)
 
 
-def coarse_variant(name: str, old: str, new: str) -> Path:
-    """A copy of COARSE in FOLDER with `old` replaced by `new` (its mesh path made absolute)."""
-    text = COARSE.read_text()
+def coarse_variant(name: str, old: str, new: str, source: Path = COARSE) -> Path:
+    """A copy of `source` (COARSE) in FOLDER with `old` replaced by `new` (its mesh path made
+    absolute)."""
+    text = source.read_text()
     if old not in text:
-        raise SystemExit(f"{COARSE} no longer has {old}; update the study's copy")
+        raise SystemExit(f"{source} no longer has {old}; update the study's copy")
     mesh = re.search(r'^path = "(.*)"$', text, re.MULTILINE)
     path = FOLDER / name
     path.write_text(text.replace(old, new).replace(
-        mesh.group(0), f'path = "{(COARSE.parent / mesh.group(1)).resolve()}"'))
+        mesh.group(0), f'path = "{(source.parent / mesh.group(1)).resolve()}"'))
     return path
+
+
+def converged_robot() -> Path:
+    """The converged truth's robot file: FINE with the P2-P0 element."""
+    return coarse_variant("diamond_converged.toml", "[material]",
+                          'element = "p2-p0"\n\n[material]', FINE)
 
 
 def self_robot() -> Path:
@@ -140,7 +157,8 @@ def self_robot() -> Path:
 
 def scenario_text(case: str, seed: int) -> str:
     body = CASES[plain_case(case)][2]
-    truth = self_robot() if case.endswith(SELF) else TRUTH_ROBOT
+    truth = (self_robot() if case.endswith(SELF) else
+             converged_robot() if case.endswith(CONVERGED) else TRUTH_ROBOT)
     robot = os.path.relpath(truth, FOLDER)
     law = "" if case.endswith(SELF) else f'law = "{TRUTH_LAW}"\n'
     load = f"load = {HIDDEN_LOAD}\n" if body == "load" else ""
@@ -290,6 +308,8 @@ def main() -> None:
                         help="recordings with the markers published (cases NAME+markers)")
     parser.add_argument("--self", action="store_true", dest="own_model",
                         help="the truth is the estimator's own model (cases NAME+self)")
+    parser.add_argument("--converged", action="store_true",
+                        help="the truth is P2-P0 on the 4.8 mm mesh (cases NAME+converged)")
     args = parser.parse_args()
     FOLDER.mkdir(parents=True, exist_ok=True)
     rows = read_results()
@@ -303,6 +323,8 @@ def main() -> None:
         cases = [c + MARKED for c in cases]
     if args.own_model:
         cases = [c + SELF for c in cases]
+    if args.converged:
+        cases = [c + CONVERGED for c in cases]
     for seed in range(args.first_seed, args.seeds + 1):
         for case in cases:
             if args.recordings_only:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from softforce_cli.calibration.rigid import RigidTransform
-from softforce_cli.diagnosis import refit, support
+from softforce_cli.diagnosis import pipeline, refit, support
 from softforce_cli.diagnosis.background import Table
 from softforce_cli.diagnosis.basis import build_basis
 from softforce_cli.diagnosis.fitting import Candidate, HeldOut, fit_values, held_out
@@ -22,7 +22,7 @@ from softforce_cli.diagnosis.pipeline import (
     names_the_mismatch,
     screened_rivals,
 )
-from softforce_cli.diagnosis.refit import ExactModel
+from softforce_cli.diagnosis.refit import ExactModel, Refit
 from softforce_cli.diagnosis.report import group_reason
 from softforce_cli.diagnosis.residuals import Field, point_residuals
 from softforce_cli.diagnosis.selection import (
@@ -35,7 +35,13 @@ from softforce_cli.diagnosis.selection import (
     worth_refitting,
 )
 from softforce_cli.diagnosis.sensitivities import ColumnSet, column_set, state_columns
-from softforce_cli.diagnosis.solves import SETTINGS, SolveCache, StateSolutions, solve_states
+from softforce_cli.diagnosis.solves import (
+    SETTINGS,
+    SolveCache,
+    StateSolutions,
+    element_bracket_scale,
+    solve_states,
+)
 from softforce_cli.diagnosis.states import States, group_states, trajectory_segments
 from softforce_cli.diagnosis.support import (
     contact_candidates,
@@ -48,7 +54,7 @@ from softforce_cli.fem.compliance import linearize
 from softforce_cli.fem.statics import SolverSettings, solve_by_continuation, solve_equilibrium
 from softforce_cli.model.effect_physics import fe_model_with_effects, support_plane
 from softforce_cli.model.effects import FrameContext, frame_contexts, make_effect
-from softforce_cli.model.robot import load_robot
+from softforce_cli.model.robot import load_robot, with_element
 from tests.conftest import SAMPLE_ROBOT
 from tests.test_reduced_model import write_beam
 
@@ -549,6 +555,63 @@ def test_a_stiffer_body_and_a_lighter_one_are_one_model_under_displacement_contr
     assert load_scale_twin(final("gravity", gravity, tilted), sample_robot) is None
     assert load_scale_twin(final("compliant_base", ("compliance_mm_per_n",),
                                  np.ones((1, 2))), sample_robot) is None
+
+
+def test_the_mesh_bracket_is_how_much_more_the_other_quadratic_element_deforms(tmp_path):
+    """(solves.element_bracket_scale) The least-squares scale of the other quadratic
+    element's displacement from rest onto the accurate model's, at the least actuated state
+    (here the beam at rest under its weight, re-solved directly with both elements): P2-P0
+    deforms more than the slightly locking P2 (the cantilever of docs/locking.md: 0.998
+    against 0.944 of Timoshenko's deflection, a ratio of 1.057)."""
+    robot = load_robot(write_beam(tmp_path))
+    actuation = np.array([[3.0, 2.0], [0.0, 0.0]])
+    solutions = solve_states(robot, actuation, SolveCache(None), column_set(robot))
+    scale = element_bracket_scale(solutions, SolveCache(None))
+    rest = robot.nominal_fe_model.rest_nodes_mm
+    moved = {element: solve_equilibrium(model.nominal_fe_model, model.cable_inputs([0.0, 0.0]))
+             .positions_mm - rest
+             for element, model in (("p2", robot), ("p2-p0", with_element(robot, "p2-p0")))}
+    expected = np.vdot(moved["p2-p0"], moved["p2"]) / np.vdot(moved["p2"], moved["p2"])
+    assert scale == pytest.approx(expected, rel=1e-3)
+    assert 1.02 < scale < 1.15
+
+
+def test_a_heavier_or_softer_body_within_the_mesh_error_is_not_named(monkeypatch,
+                                                                    sample_robot):
+    """(pipeline._within_mesh) With the other quadratic element 1.14 times as compliant on
+    the robot's mesh (the coarse Diamond's, Neo-Hookean), a body read 5% softer, or a
+    gravity 6% stronger that fits as well as a 5.6% softer body (the converged body's clean
+    recording), is the mesh's error and is not named; a body 30% softer, a stiffer one, and
+    a tilted gravity with nothing alike are."""
+    monkeypatch.setattr(pipeline, "element_bracket_scale", lambda solutions, cache: 1.14)
+    gravity = ("scale", "tilt_x_deg", "tilt_y_deg")
+    held = HeldOut(1.12, 0.43, np.full(8, 1.25), np.full(8, 0.19))
+
+    def final(name: str, free: tuple[str, ...], values: list[float],
+              ci95: list[list[float]]) -> Final:
+        hypothesis = Hypothesis(name, None, free, np.ones(len(free)), np.zeros(len(free)),
+                                np.ones(len(free)))
+        candidate = Candidate((hypothesis,))
+        screened = Screened(candidate, np.array(values), held, False, np.array(ci95), None)
+        fitted = Refit(candidate, np.array(values), None, None, None, 0, np.array(values))
+        return Final(screened, fitted, held, np.array(ci95), True, None)
+
+    def named(*finals: Final) -> bool:
+        result = Diagnosis(sample_robot, None)
+        result.selected, result.finals = [finals[0]], list(finals)
+        pipeline._within_mesh(result, None, None)
+        assert (result.mesh_load_scale == 1.14) or not result.within_mesh
+        return bool(result.selected)
+
+    def softer(scale: float) -> Final:
+        return final("stiffness_scale", ("scale",), [scale], [[scale - 0.01, scale + 0.01]])
+
+    tilted = final("gravity", gravity, [1.062, -1.1, -0.3],
+                   [[1.057, 1.066], [-1.5, -0.7], [-0.9, 0.2]])
+    assert not named(softer(0.95))
+    assert named(softer(0.7)) and named(softer(1.05))
+    assert not named(tilted, softer(0.944))
+    assert named(tilted)
 
 
 def test_a_group_says_why_its_effects_are_one_signature():

@@ -40,7 +40,12 @@ from softforce_cli.diagnosis.selection import (
     worth_refitting,
 )
 from softforce_cli.diagnosis.sensitivities import ColumnSet, column_set
-from softforce_cli.diagnosis.solves import SolveCache, StateSolutions, solve_states
+from softforce_cli.diagnosis.solves import (
+    SolveCache,
+    StateSolutions,
+    element_bracket_scale,
+    solve_states,
+)
 from softforce_cli.diagnosis.states import States, group_states, trajectory_segments
 from softforce_cli.diagnosis.support import support_basis
 from softforce_cli.errors import SolverError
@@ -130,6 +135,10 @@ class Diagnosis:
     not_refitted: list[str] = field(default_factory=list)
     # accepted effects that explain too little of the mismatch to be named (selection.explains)
     partial: list[str] = field(default_factory=list)
+    # a body heavier or softer by no more than the mesh's discretisation makes: the selected
+    # effects not named (_within_mesh), and that bound (solves.element_bracket_scale)
+    within_mesh: list[str] = field(default_factory=list)
+    mesh_load_scale: float | None = None
     # second effects accepted with the first besides the selected one (best first)
     second_rivals: list[Final] = field(default_factory=list)
     # the screening's inputs at the markers' residual entries (diagnosis.markers), their
@@ -265,6 +274,7 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
         result.stage = "refit"
         _first_effects(result, judge)
         _select(result, judge)
+        _within_mesh(result, solutions, cache)
         result.stage = "verdict"
         _verdict(result, judge, solutions)
         result.stage = "done"
@@ -405,6 +415,34 @@ def _select(result: Diagnosis, judge: _Judge) -> None:
         # screens behind a softer body, and refitted leaves 0.33 mm to its 0.38): it is the
         # first effect, and the second is sought anew with it
         _select_first(result, judge, better)
+
+
+def _within_mesh(result: Diagnosis, solutions: StateSolutions, cache: SolveCache) -> None:
+    """Leave unnamed (result.within_mesh) a selection that fits no better than a body
+    heavier or softer (load_scale) by no more than the mesh's own discretisation makes it
+    (solves.element_bracket_scale): the first selected effect, or a refitted one the data
+    cannot tell from it. The two quadratic elements on the robot's mesh bracket the
+    converged body, so such a fit cannot be told from the mesh's error: the coarse P2
+    Diamond, against a clean recording of the converged body (P2-P0 on the 4.8 mm mesh),
+    fits gravity 1.062 tilted 1.1 degrees, or as well a body 0.944 as stiff, where P2-P0 on
+    its mesh deforms 1.1 times as much (docs/diagnosis.md, limits)."""
+    if not result.selected:
+        return
+    first = result.selected[0]
+    alike = [first, *(f for f in result.finals if f is not first and f.accepted
+                      and f.screened.relative == first.screened.relative
+                      and indistinct(f.heldout, first.heldout))]
+    scales = [(final, scale) for final in alike
+              if (scale := load_scale(final, result.robot)) is not None]
+    if not scales:
+        return
+    bound = result.mesh_load_scale = element_bracket_scale(solutions, cache)
+    inside = [(final, scale) for final, scale in scales
+              if bound is not None and min(1.0, bound) <= scale <= max(1.0, bound)]
+    if inside:
+        result.within_mesh = [f"{final.candidate.label} (load scale g / E {scale:.3g})"
+                              for final, scale in inside]
+        result.selected = []
 
 
 def _select_first(result: Diagnosis, judge: _Judge, first: Final) -> None:
@@ -737,6 +775,11 @@ def _verdict(result: Diagnosis, judge: _Judge, solutions: StateSolutions) -> Non
         "screened": len(result.screened),
         "not_refitted": result.not_refitted,
         "partial_effects": result.partial,
+        # selected effects left unnamed as within the mesh's discretisation, and the load
+        # scale that bounds it (the other quadratic element on the mesh; None: not needed)
+        "within_mesh_effects": result.within_mesh,
+        "mesh_load_scale": (None if result.mesh_load_scale is None
+                            else round(result.mesh_load_scale, 4)),
         # the markers' residual (diagnosis.markers): None when the recordings have none
         "markers": None if result.markers is None else {
             "observations": len(result.markers.frame) // 3,
@@ -766,6 +809,16 @@ def load_scale_twin(chosen: Final, robot: Robot) -> str | None:
                   in zip(hypothesis.free, chosen.ci95, strict=True) if name.startswith("tilt")]
         return None if any(tilted) else "stiffness_scale"
     return None
+
+
+def load_scale(chosen: Final, robot: Robot) -> float | None:
+    """The load scale g / E (1: nominal) of a fitted effect that is one (load_scale_twin):
+    1 / s for a stiffness scale s, the gravity scale itself; None for another effect."""
+    if load_scale_twin(chosen, robot) is None:
+        return None
+    hypothesis = chosen.candidate.hypotheses[0]
+    scale = float(chosen.values[hypothesis.free.index("scale")])
+    return 1.0 / scale if hypothesis.name == "stiffness_scale" else scale
 
 
 def node_systematic_mm(field: Field, node_count: int) -> tuple[np.ndarray, np.ndarray]:

@@ -172,7 +172,8 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
                              "mismatch (a camera turned about its axis or moved sideways "
                              "slides the surfaces along themselves)")
     elif diagnosis.verdict == "none":
-        lines.append("no effect of the library improves the held-out fit clearly: the model "
+        beyond = "beyond the mesh's own error" if diagnosis.within_mesh else "clearly"
+        lines.append(f"no effect of the library improves the held-out fit {beyond}: the model "
                      f"explains the recording to {evidence['rms_nominal_mm']:.2f} mm RMS "
                      f"(noise floor {diagnosis.noise_floor_mm:.2f} mm)")
     else:
@@ -186,6 +187,13 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
                          f"baseline: {evidence['heldout_relative_nominal_mm']:.2f} -> "
                          f"{evidence['heldout_relative_final_mm']:.2f} mm, noise floor "
                          f"{diagnosis.noise_floor_mm:.2f} mm): physics outside the library?")
+    if diagnosis.within_mesh:
+        bound = diagnosis.mesh_load_scale
+        lines.append(f"{', '.join(diagnosis.within_mesh)} fits it, but not beyond this mesh's "
+                     f"own error: the other quadratic element on the same mesh deforms "
+                     f"{bound:.3g} times as much under gravity, and the two bracket the "
+                     "converged body (docs/locking.md); the mesh is the likely cause, not "
+                     "named (a finer mesh would tell)")
     lines += [plate_resolution_line(diagnosis.robot, height) for final in diagnosis.selected
               if (height := final.candidate.plate_height_mm(final.values)) is not None]
     for group in diagnosis.groups:

@@ -263,6 +263,30 @@ def _law_secant(accurate: Robot, inputs: CableInputs, positions_mm: np.ndarray,
     return switched - positions_mm
 
 
+def element_bracket_scale(solutions: StateSolutions, cache: SolveCache) -> float | None:
+    """How much more (> 1) or less the other quadratic element on the same mesh (P2-P0 for
+    P2, P2 for P2-P0) deforms than the accurate model at the least actuated state: the
+    least-squares scale k of its displacement from rest onto the accurate model's, k u_A ~
+    u_other. P2 is too stiff and P2-P0 slightly too soft on a mesh, so the converged body
+    lies between the two (docs/locking.md): a body that reads 1 to k times softer (or
+    heavier) is within this mesh's discretisation. On the coarse Diamond under gravity, P2-P0
+    sags about 1.1 times what P2 does. None when the other element has no equilibrium
+    there."""
+    robot = solutions.robot
+    other = with_element(robot, "p2" if robot.element_name == "p2-p0" else "p2-p0")
+    state = int(np.argmin(np.abs(solutions.actuation).sum(axis=1)))
+    accurate = solutions.positions_mm[state]
+    try:
+        positions, _ = cache.solve(other.nominal_fe_model,
+                                   other.cable_inputs(solutions.actuation[state]), accurate)
+    except SolverError:
+        return None
+    rest = robot.nominal_fe_model.rest_nodes_mm
+    moved = accurate - rest
+    size = float(np.vdot(moved, moved))
+    return float(np.vdot(positions - rest, moved) / size) if size > 0 else None
+
+
 def _chain(actuation: np.ndarray) -> list[int]:
     """State indices from the least actuated, each next the nearest unvisited one."""
     remaining = list(range(len(actuation)))
