@@ -37,9 +37,10 @@ from softforce_cli.diagnosis.selection import (
 from softforce_cli.diagnosis.sensitivities import ColumnSet, column_set, state_columns
 from softforce_cli.diagnosis.solves import (
     SETTINGS,
+    ElementBracket,
     SolveCache,
     StateSolutions,
-    element_bracket_scale,
+    element_bracket,
     solve_states,
 )
 from softforce_cli.diagnosis.states import States, group_states, trajectory_segments
@@ -557,33 +558,40 @@ def test_a_stiffer_body_and_a_lighter_one_are_one_model_under_displacement_contr
                                  np.ones((1, 2))), sample_robot) is None
 
 
-def test_the_mesh_bracket_is_how_much_more_the_other_quadratic_element_deforms(tmp_path):
-    """(solves.element_bracket_scale) The least-squares scale of the other quadratic
-    element's displacement from rest onto the accurate model's, at the least actuated state
-    (here the beam at rest under its weight, re-solved directly with both elements): P2-P0
-    deforms more than the slightly locking P2 (the cantilever of docs/locking.md: 0.998
-    against 0.944 of Timoshenko's deflection, a ratio of 1.057)."""
+def test_the_mesh_bracket_is_how_far_the_other_quadratic_element_is(tmp_path):
+    """(solves.element_bracket) The least-squares scale of the other quadratic element's
+    displacement from rest onto the accurate model's, and their RMS distance over the
+    surface, at the least actuated state (here the beam at rest under its weight, re-solved
+    directly with both elements): P2-P0 deforms more than the slightly locking P2 (the
+    cantilever of docs/locking.md: 0.998 against 0.944 of Timoshenko's deflection, a ratio
+    of 1.057)."""
     robot = load_robot(write_beam(tmp_path))
     actuation = np.array([[3.0, 2.0], [0.0, 0.0]])
     solutions = solve_states(robot, actuation, SolveCache(None), column_set(robot))
-    scale = element_bracket_scale(solutions, SolveCache(None))
+    bracket = element_bracket(solutions, SolveCache(None))
     rest = robot.nominal_fe_model.rest_nodes_mm
     moved = {element: solve_equilibrium(model.nominal_fe_model, model.cable_inputs([0.0, 0.0]))
              .positions_mm - rest
              for element, model in (("p2", robot), ("p2-p0", with_element(robot, "p2-p0")))}
     expected = np.vdot(moved["p2-p0"], moved["p2"]) / np.vdot(moved["p2"], moved["p2"])
-    assert scale == pytest.approx(expected, rel=1e-3)
-    assert 1.02 < scale < 1.15
+    assert bracket.load_scale == pytest.approx(expected, rel=1e-3)
+    assert 1.02 < bracket.load_scale < 1.15
+    apart = (moved["p2-p0"] - moved["p2"])[robot.mesh.surface_nodes]
+    assert bracket.surface_rms_mm == pytest.approx(
+        np.sqrt(np.mean(np.sum(apart**2, axis=1))), rel=1e-3)
 
 
 def test_a_heavier_or_softer_body_within_the_mesh_error_is_not_named(monkeypatch,
                                                                     sample_robot):
     """(pipeline._within_mesh) With the other quadratic element 1.14 times as compliant on
-    the robot's mesh (the coarse Diamond's, Neo-Hookean), a body read 5% softer, or a
-    gravity 6% stronger that fits as well as a 5.6% softer body (the converged body's clean
-    recording), is the mesh's error and is not named; a body 30% softer, a stiffer one, and
-    a tilted gravity with nothing alike are."""
-    monkeypatch.setattr(pipeline, "element_bracket_scale", lambda solutions, cache: 1.14)
+    the robot's mesh and 1.29 mm RMS away (the coarse Diamond's, Neo-Hookean), a body read
+    5% softer, or a gravity 6% stronger that fits as well as a 5.6% softer body, leaving
+    1.08 mm of systematic residual (the converged body's clean recording), is the mesh's
+    error and is not named; a body 30% softer, a stiffer one, a tilted gravity with nothing
+    alike, and a body 5% softer with a mismatch larger than the mesh's error (2.40 mm: a
+    compliant base in the converged body) are."""
+    bracket = ElementBracket(1.14, 1.29)
+    monkeypatch.setattr(pipeline, "element_bracket", lambda solutions, cache: bracket)
     gravity = ("scale", "tilt_x_deg", "tilt_y_deg")
     held = HeldOut(1.12, 0.43, np.full(8, 1.25), np.full(8, 0.19))
 
@@ -596,11 +604,13 @@ def test_a_heavier_or_softer_body_within_the_mesh_error_is_not_named(monkeypatch
         fitted = Refit(candidate, np.array(values), None, None, None, 0, np.array(values))
         return Final(screened, fitted, held, np.array(ci95), True, None)
 
-    def named(*finals: Final) -> bool:
+    def named(*finals: Final, systematic_mm: float = 1.08) -> bool:
         result = Diagnosis(sample_robot, None)
         result.selected, result.finals = [finals[0]], list(finals)
+        result.noise_floor_mm = 0.29
+        result.nominal = _field(np.full((2, 5), np.hypot(systematic_mm, 0.29)))
         pipeline._within_mesh(result, None, None)
-        assert (result.mesh_load_scale == 1.14) or not result.within_mesh
+        assert result.mesh_bracket is bracket or not result.within_mesh
         return bool(result.selected)
 
     def softer(scale: float) -> Final:
@@ -612,6 +622,7 @@ def test_a_heavier_or_softer_body_within_the_mesh_error_is_not_named(monkeypatch
     assert named(softer(0.7)) and named(softer(1.05))
     assert not named(tilted, softer(0.944))
     assert named(tilted)
+    assert named(softer(0.95), systematic_mm=2.40)
 
 
 def test_a_group_says_why_its_effects_are_one_signature():

@@ -41,9 +41,10 @@ from softforce_cli.diagnosis.selection import (
 )
 from softforce_cli.diagnosis.sensitivities import ColumnSet, column_set
 from softforce_cli.diagnosis.solves import (
+    ElementBracket,
     SolveCache,
     StateSolutions,
-    element_bracket_scale,
+    element_bracket,
     solve_states,
 )
 from softforce_cli.diagnosis.states import States, group_states, trajectory_segments
@@ -136,9 +137,9 @@ class Diagnosis:
     # accepted effects that explain too little of the mismatch to be named (selection.explains)
     partial: list[str] = field(default_factory=list)
     # a body heavier or softer by no more than the mesh's discretisation makes: the selected
-    # effects not named (_within_mesh), and that bound (solves.element_bracket_scale)
+    # effects not named (_within_mesh), and that bound (solves.element_bracket)
     within_mesh: list[str] = field(default_factory=list)
-    mesh_load_scale: float | None = None
+    mesh_bracket: ElementBracket | None = None
     # second effects accepted with the first besides the selected one (best first)
     second_rivals: list[Final] = field(default_factory=list)
     # the screening's inputs at the markers' residual entries (diagnosis.markers), their
@@ -419,13 +420,15 @@ def _select(result: Diagnosis, judge: _Judge) -> None:
 
 def _within_mesh(result: Diagnosis, solutions: StateSolutions, cache: SolveCache) -> None:
     """Leave unnamed (result.within_mesh) a selection that fits no better than a body
-    heavier or softer (load_scale) by no more than the mesh's own discretisation makes it
-    (solves.element_bracket_scale): the first selected effect, or a refitted one the data
-    cannot tell from it. The two quadratic elements on the robot's mesh bracket the
-    converged body, so such a fit cannot be told from the mesh's error: the coarse P2
-    Diamond, against a clean recording of the converged body (P2-P0 on the 4.8 mm mesh),
-    fits gravity 1.062 tilted 1.1 degrees, or as well a body 0.944 as stiff, where P2-P0 on
-    its mesh deforms 1.1 times as much (docs/diagnosis.md, limits)."""
+    heavier or softer (load_scale) by no more than the mesh's own discretisation makes it,
+    when the mismatch is no larger than that error either (solves.element_bracket): the
+    two quadratic elements on the robot's mesh bracket the converged body, so such a fit
+    cannot be told from the mesh's error. The coarse P2 Diamond, against a clean recording
+    of the converged body (P2-P0 on the 4.8 mm mesh), fits gravity 1.062 tilted 1.1
+    degrees, or as well a body 0.944 as stiff, with 1.08 mm of systematic residual, where
+    P2-P0 on its mesh deforms 1.14 times as much and lies 1.29 mm RMS away. A compliant
+    base in that body fits a load scale of 1.13 too, but leaves 2.40 mm: not the mesh alone
+    (docs/diagnosis.md, limits)."""
     if not result.selected:
         return
     first = result.selected[0]
@@ -436,9 +439,13 @@ def _within_mesh(result: Diagnosis, solutions: StateSolutions, cache: SolveCache
               if (scale := load_scale(final, result.robot)) is not None]
     if not scales:
         return
-    bound = result.mesh_load_scale = element_bracket_scale(solutions, cache)
+    bracket = result.mesh_bracket = element_bracket(solutions, cache)
+    if bracket is None or systematic_mm(result.nominal.rms(), result.noise_floor_mm) > (
+            bracket.surface_rms_mm):
+        return
+    bound = bracket.load_scale
     inside = [(final, scale) for final, scale in scales
-              if bound is not None and min(1.0, bound) <= scale <= max(1.0, bound)]
+              if min(1.0, bound) <= scale <= max(1.0, bound)]
     if inside:
         result.within_mesh = [f"{final.candidate.label} (load scale g / E {scale:.3g})"
                               for final, scale in inside]
@@ -775,11 +782,12 @@ def _verdict(result: Diagnosis, judge: _Judge, solutions: StateSolutions) -> Non
         "screened": len(result.screened),
         "not_refitted": result.not_refitted,
         "partial_effects": result.partial,
-        # selected effects left unnamed as within the mesh's discretisation, and the load
-        # scale that bounds it (the other quadratic element on the mesh; None: not needed)
+        # selected effects left unnamed as within the mesh's discretisation, and what bounds
+        # it (the other quadratic element on the mesh; None: not needed)
         "within_mesh_effects": result.within_mesh,
-        "mesh_load_scale": (None if result.mesh_load_scale is None
-                            else round(result.mesh_load_scale, 4)),
+        "mesh_bracket": (None if result.mesh_bracket is None else {
+            "load_scale": round(result.mesh_bracket.load_scale, 4),
+            "surface_rms_mm": round(result.mesh_bracket.surface_rms_mm, 3)}),
         # the markers' residual (diagnosis.markers): None when the recordings have none
         "markers": None if result.markers is None else {
             "observations": len(result.markers.frame) // 3,

@@ -188,12 +188,12 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
                          f"{evidence['heldout_relative_final_mm']:.2f} mm, noise floor "
                          f"{diagnosis.noise_floor_mm:.2f} mm): physics outside the library?")
     if diagnosis.within_mesh:
-        bound = diagnosis.mesh_load_scale
+        bracket = diagnosis.mesh_bracket
         lines.append(f"{', '.join(diagnosis.within_mesh)} fits it, but not beyond this mesh's "
                      f"own error: the other quadratic element on the same mesh deforms "
-                     f"{bound:.3g} times as much under gravity, and the two bracket the "
-                     "converged body (docs/locking.md); the mesh is the likely cause, not "
-                     "named (a finer mesh would tell)")
+                     f"{bracket.load_scale:.3g} times as much, {bracket.surface_rms_mm:.2f} mm "
+                     "RMS away, and the two bracket the converged body (docs/locking.md); the "
+                     "mesh is the likely cause, not named (a finer mesh would tell)")
     lines += [plate_resolution_line(diagnosis.robot, height) for final in diagnosis.selected
               if (height := final.candidate.plate_height_mm(final.values)) is not None]
     for group in diagnosis.groups:

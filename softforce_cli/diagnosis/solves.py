@@ -263,15 +263,27 @@ def _law_secant(accurate: Robot, inputs: CableInputs, positions_mm: np.ndarray,
     return switched - positions_mm
 
 
-def element_bracket_scale(solutions: StateSolutions, cache: SolveCache) -> float | None:
-    """How much more (> 1) or less the other quadratic element on the same mesh (P2-P0 for
-    P2, P2 for P2-P0) deforms than the accurate model at the least actuated state: the
-    least-squares scale k of its displacement from rest onto the accurate model's, k u_A ~
-    u_other. P2 is too stiff and P2-P0 slightly too soft on a mesh, so the converged body
-    lies between the two (docs/locking.md): a body that reads 1 to k times softer (or
-    heavier) is within this mesh's discretisation. On the coarse Diamond under gravity, P2-P0
-    sags about 1.1 times what P2 does. None when the other element has no equilibrium
-    there."""
+@dataclass(frozen=True)
+class ElementBracket:
+    """How far the other quadratic element on the robot's mesh (P2-P0 for P2, P2 for P2-P0)
+    is from the accurate model at the least actuated state: P2 is too stiff and P2-P0
+    slightly too soft on a mesh, so the converged body lies between the two
+    (docs/locking.md), and this is the size of the mesh's own error.
+
+    load_scale     : the least-squares scale k of the other element's displacement from rest
+                     onto the accurate model's, k u_A ~ u_other (on the coarse Diamond under
+                     gravity, Neo-Hookean: P2-P0 deforms 1.14 times what P2 does);
+    surface_rms_mm : the RMS distance between the two over the mesh's surface nodes (1.29
+                     mm there).
+    """
+
+    load_scale: float
+    surface_rms_mm: float
+
+
+def element_bracket(solutions: StateSolutions, cache: SolveCache) -> ElementBracket | None:
+    """The ElementBracket of the accurate model of `solutions` (one more solve, cached);
+    None when the other element has no equilibrium near the accurate one."""
     robot = solutions.robot
     other = with_element(robot, "p2" if robot.element_name == "p2-p0" else "p2-p0")
     state = int(np.argmin(np.abs(solutions.actuation).sum(axis=1)))
@@ -284,7 +296,11 @@ def element_bracket_scale(solutions: StateSolutions, cache: SolveCache) -> float
     rest = robot.nominal_fe_model.rest_nodes_mm
     moved = accurate - rest
     size = float(np.vdot(moved, moved))
-    return float(np.vdot(positions - rest, moved) / size) if size > 0 else None
+    if size <= 0.0:
+        return None
+    apart = (positions - accurate)[robot.mesh.surface_nodes]
+    return ElementBracket(float(np.vdot(positions - rest, moved) / size),
+                          float(np.sqrt(np.mean(np.sum(apart**2, axis=1)))))
 
 
 def _chain(actuation: np.ndarray) -> list[int]:
