@@ -21,6 +21,7 @@ from softforce_cli.diagnosis.pipeline import (
     load_scale_twin,
     names_the_mismatch,
     screened_rivals,
+    second_keeps_the_first,
 )
 from softforce_cli.diagnosis.refit import ExactModel, Refit
 from softforce_cli.diagnosis.report import group_reason
@@ -436,6 +437,26 @@ def test_an_effect_fitted_on_absolute_residuals_must_explain_what_changes_too(re
     assert names_the_mismatch(final, 0.95, 0.27) is named
     rejected = Final(screened, None, screened.heldout, screened.ci95, False, None, relative)
     assert not names_the_mismatch(rejected, 0.95, 0.27)
+
+
+def test_a_second_effect_must_not_undo_the_first():
+    """(pipeline.second_keeps_the_first) The converged body's south arm twice as stiff
+    (relative held-out 0.806 mm, floor 0.293): the arm alone leaves 0.381 mm and is named; a
+    camera move accepted with it on the absolute residuals leaves 1.529 mm of the change
+    across frames and is not selected; a pair that still explains the change is; and where
+    the first alone does not name the mismatch, an accepted pair is kept as before."""
+    screened = _screened("regional_stiffness", "south", np.full(8, 0.3))
+
+    def final(relative_after: float, accepted: bool = True) -> Final:
+        relative = HeldOut(0.806, relative_after, np.ones(8), np.ones(8))
+        return Final(screened, None, screened.heldout, screened.ci95, accepted, None, relative)
+
+    arm = final(0.381)
+    assert names_the_mismatch(arm, 0.806, 0.293)
+    assert not second_keeps_the_first(arm, final(1.529), 0.806, 0.293)
+    assert second_keeps_the_first(arm, final(0.35), 0.806, 0.293)
+    assert not second_keeps_the_first(arm, final(0.35, accepted=False), 0.806, 0.293)
+    assert second_keeps_the_first(final(0.7), final(0.75), 0.806, 0.293)
 
 
 def test_fallback_refits_other_targets_that_generalise_and_agree_with_the_table():

@@ -592,6 +592,18 @@ def better_rival(result: Diagnosis, relative_nominal_mm: float, floor: float
     return min(rivals, key=lambda f: f.heldout.rms_after_mm, default=None)
 
 
+def second_keeps_the_first(first: Final, pair: Final, relative_nominal_mm: float,
+                           floor: float) -> bool:
+    """Whether a refitted pair (the first effect and a second) may be selected: accepted,
+    and naming the mismatch when the first alone does (names_the_mismatch). A second effect
+    must not undo the first: a camera moved 20 mm (at its bound) with a south arm twice as
+    stiff improved the absolute fit of the converged body, but left the change across
+    frames at 1.53 mm where the arm alone left 0.38 (floor 0.29), and the arm went
+    unnamed."""
+    return pair.accepted and (names_the_mismatch(pair, relative_nominal_mm, floor)
+                              or not names_the_mismatch(first, relative_nominal_mm, floor))
+
+
 def names_the_mismatch(final: Final, relative_nominal_mm: float, floor: float) -> bool:
     """Whether a refitted candidate would be named: accepted and, relative to the static
     baseline, explaining the mismatch rather than fitting part of it (_verdict). An effect
@@ -693,7 +705,7 @@ def _second_in_mode(result: Diagnosis, judge: _Judge, first: Final, relative: bo
         except SolverError as error:
             result.not_refitted.append(f"{pair.candidate.label}: {error}")
             continue
-        if final.accepted:
+        if second_keeps_the_first(first, final, result.relative_nominal_mm, judge.floor):
             accepted.append(final)
     return sorted(accepted, key=lambda f: f.heldout.rms_after_mm)
 
