@@ -432,9 +432,7 @@ def _within_mesh(result: Diagnosis, solutions: StateSolutions, cache: SolveCache
     if not result.selected:
         return
     first = result.selected[0]
-    alike = [first, *(f for f in result.finals if f is not first and f.accepted
-                      and f.screened.relative == first.screened.relative
-                      and indistinct(f.heldout, first.heldout))]
+    alike = [first, *_fitting_as_well(result, first)]
     scales = [(final, scale) for final in alike
               if (scale := load_scale(final, result.robot)) is not None]
     if not scales:
@@ -450,6 +448,14 @@ def _within_mesh(result: Diagnosis, solutions: StateSolutions, cache: SolveCache
         result.within_mesh = [f"{final.candidate.label} (load scale g / E {scale:.3g})"
                               for final, scale in inside]
         result.selected = []
+
+
+def _fitting_as_well(result: Diagnosis, chosen: Final) -> list[Final]:
+    """The other accepted refitted effects of the chosen one's mode whose held-out errors per
+    segment the data cannot tell from its own (selection.indistinct)."""
+    return [f for f in result.finals if f is not chosen and f.accepted
+            and f.screened.relative == chosen.screened.relative
+            and indistinct(f.heldout, chosen.heldout)]
 
 
 def _select_first(result: Diagnosis, judge: _Judge, first: Final) -> None:
@@ -745,10 +751,8 @@ def _verdict(result: Diagnosis, judge: _Judge, solutions: StateSolutions) -> Non
                     if names_the_mismatch(f, relative_before, floor)
                     and indistinct(f.heldout, chosen.heldout)]
         else:
-            near = [f.candidate.label for f in result.finals if f is not chosen
-                    and f.screened.relative == chosen.screened.relative
-                    and f.accepted and names_the_mismatch(f, relative_before, floor)
-                    and indistinct(f.heldout, chosen.heldout)]
+            near = [f.candidate.label for f in _fitting_as_well(result, chosen)
+                    if names_the_mismatch(f, relative_before, floor)]
         twin = load_scale_twin(chosen, result.robot)
         if twin is not None and twin not in near:
             near.append(twin)

@@ -286,7 +286,7 @@ def element_bracket(solutions: StateSolutions, cache: SolveCache) -> ElementBrac
     None when the other element has no equilibrium near the accurate one."""
     robot = solutions.robot
     other = with_element(robot, "p2" if robot.element_name == "p2-p0" else "p2-p0")
-    state = int(np.argmin(np.abs(solutions.actuation).sum(axis=1)))
+    state = _least_actuated(solutions.actuation)
     accurate = solutions.positions_mm[state]
     try:
         positions, _ = cache.solve(other.nominal_fe_model,
@@ -303,10 +303,15 @@ def element_bracket(solutions: StateSolutions, cache: SolveCache) -> ElementBrac
                           float(np.sqrt(np.mean(np.sum(apart**2, axis=1)))))
 
 
+def _least_actuated(actuation: np.ndarray) -> int:
+    """The state (row of actuation (S, a)) whose inputs sum smallest in magnitude."""
+    return int(np.argmin(np.abs(actuation).sum(axis=1)))
+
+
 def _chain(actuation: np.ndarray) -> list[int]:
     """State indices from the least actuated, each next the nearest unvisited one."""
     remaining = list(range(len(actuation)))
-    current = int(np.argmin(np.abs(actuation).sum(axis=1)))
+    current = _least_actuated(actuation)
     order = []
     while remaining:
         remaining.remove(current)

@@ -121,12 +121,12 @@ def compare(full: CaseResult, reduced: CaseResult, rest_mm: np.ndarray,
         a = np.asarray(getattr(full.compliance, name))
         b = np.asarray(getattr(reduced.compliance, name))
         if a.size:
-            relative[name] = float(np.linalg.norm(a - b) / max(np.linalg.norm(a), 1e-300))
+            relative[name] = _relative(a, b)
             entry[name] = float(np.abs(a - b).max() / max(np.abs(a).max(), 1e-300))
     held_relative = float("nan")
     if held is not None and np.asarray(full.compliance.W_ef).size:
         a, b = full.compliance.held_ef(held), reduced.compliance.held_ef(held)
-        held_relative = float(np.linalg.norm(a - b) / max(np.linalg.norm(a), 1e-300))
+        held_relative = _relative(a, b)
     return CaseErrors(
         rms_mm=float(np.sqrt(np.mean(distances**2))), max_mm=float(distances.max()),
         displacement_mm=float(np.sqrt(np.mean(np.sum(moved**2, axis=1)))),
@@ -136,6 +136,11 @@ def compare(full: CaseResult, reduced: CaseResult, rest_mm: np.ndarray,
         tension_n=float(np.abs(eq_full.cable_tensions_n - eq_red.cable_tensions_n).max(
             initial=0.0)),
     )
+
+
+def _relative(expected: np.ndarray, found: np.ndarray) -> float:
+    """|found - expected|_F / |expected|_F."""
+    return float(np.linalg.norm(found - expected) / max(np.linalg.norm(expected), 1e-300))
 
 
 def case_errors(full: FEModel, reduced: FEModel, case: LoadCase, surface_nodes: np.ndarray,
