@@ -17,6 +17,9 @@ the figures in docs/figures/, which docs/sensing.md quotes.
 - A sweep of feature count (25, 51, 101) on the probes: error and frame rate.
 - `--scenario FILE`: any scenario (benchmarks/scenarios/: another actuation, an oblique
   camera), sensed with the truth's camera pose and tared on its first 3 frames.
+- `--converged`: the truth closer to the mesh-converged body (P2-P0 on the 4.8 mm mesh of
+  sample_data/diamond_fine, docs/locking.md's reference) instead of P2 on the 6.5 mm one;
+  written to out/study_sensing_converged/.
 """
 
 from __future__ import annotations
@@ -47,6 +50,7 @@ from softforce_cli.sim.simulate import simulate  # noqa: E402
 OUT = ROOT / "out" / "study_sensing"
 FIGURES = ROOT / "docs" / "figures"
 TRUTH_ROBOT = ROOT / "sample_data" / "diamond_truth" / "diamond.toml"
+FINE_ROBOT = ROOT / "sample_data" / "diamond_fine" / "diamond.toml"
 ESTIMATOR = ROOT / "sample_data" / "diamond" / "diamond.toml"
 # The paper's weights up to 0.86 N, then 0.96 N instead of its 1.06 N: the locking-free truth
 # at E = 0.18 MPa buckles sideways near 1 N below the apex (its compliance grows from 8.7 to
@@ -225,6 +229,21 @@ def truth_pose(path: Path) -> Path:
     return pose
 
 
+def use_converged_truth() -> None:
+    """Make the study's truth P2-P0 on the fine mesh (a robot file written beside its
+    outputs), and its outputs a folder of their own."""
+    global OUT, TRUTH_ROBOT
+    OUT = ROOT / "out" / "study_sensing_converged"
+    OUT.mkdir(parents=True, exist_ok=True)
+    text = FINE_ROBOT.read_text()
+    mesh = 'path = "diamond_fine.vtu"'
+    if mesh not in text:
+        raise SystemExit(f"{FINE_ROBOT} no longer has {mesh}; update the study's copy")
+    TRUTH_ROBOT = OUT / "diamond_converged.toml"
+    TRUTH_ROBOT.write_text(text.replace(
+        mesh, f'path = "{FINE_ROBOT.parent / "diamond_fine.vtu"}"\nelement = "p2-p0"'))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--robot", type=Path, default=ESTIMATOR, help="estimator robot file")
@@ -241,7 +260,11 @@ def main() -> None:
                         help="sense this scenario file's recording instead (simulated once)")
     parser.add_argument("--table-iii-only", action="store_true",
                         help="Table III alone (markers and material calibration included)")
+    parser.add_argument("--converged", action="store_true",
+                        help="the truth is P2-P0 on the 4.8 mm mesh (out/study_sensing_converged)")
     args = parser.parse_args()
+    if args.converged:
+        use_converged_truth()
     name = args.robot.stem if args.robot.stem != "diamond" else args.robot.parent.name
     if args.scenario:
         print(json.dumps(scenario_study(args.scenario, args.robot), indent=1))

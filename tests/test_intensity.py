@@ -91,3 +91,52 @@ def test_fe_updates_converge_to_the_applied_load(force_model, relinearize_mm, to
     estimated = update.forces_n @ update.columns.directions
     assert np.linalg.norm(estimated - force) < tolerance * 0.4
     np.testing.assert_allclose(sensor.tensions, truth.cable_tensions_n, rtol=tolerance)
+
+
+def test_a_frame_finds_its_contact_again_on_the_surface_it_moved():
+    """(ForceSensor.settle) A 1 N push at the upper bar's node moves it 10.3 mm: the pushed
+    point is then nearer another node of the surface the frame starts from. Found again
+    after each update, the contact reaches the pushed node and the updates the applied
+    load (the same model as the estimator, a free 3D force, as above); left at the first
+    node, the contact stays there, a node's spacing off."""
+    robot = load_robot(ROBOT)
+    actuation = np.array([5.0, 0.0, 5.0, 0.0])
+    surface = robot.mesh.surface_nodes
+    node = surface[np.argmin(np.linalg.norm(robot.mesh.nodes_mm[surface] - [0, 45, 90], axis=1))]
+    force = -1.0 * robot.mesh.vertex_normals[node]
+    loads = PointLoads(robot.attach(robot.rest_nodes_mm[node][None]), force[None])
+    truth = solve_equilibrium(robot.fe_model, robot.cable_inputs(actuation), loads)
+    true_features = truth.positions_mm[robot.feature_nodes]
+    centre = truth.positions_mm[node][None]
+    p = len(true_features)
+
+    def settled(relocating: bool) -> tuple[np.ndarray, np.ndarray]:
+        settings = SenseSettings(estimation=EstimationSettings(
+            force_model="3d", relinearize_mm=0.0, rematch_mm=0.0))
+        sensor = ForceSensor(robot, RigidTransform(np.eye(3), np.zeros(3)), actuation,
+                             settings)
+        axes = np.full((1, 3), np.nan)
+
+        def matches() -> FeatureMatches:
+            _, normals = sensor.feature_geometry()
+            observed = np.einsum("pi,pi->p", true_features, normals)
+            return FeatureMatches(np.ones(p, bool), np.zeros(p, bool), np.zeros(p, bool),
+                                  true_features, observed, np.zeros(p), np.zeros(p))
+
+        first, _ = sensor._contact_nodes(centre, axes)
+        update = sensor.settle(matches(), matches, first, contact_axes=axes,
+                               relocate=(lambda: sensor._contact_nodes(centre, axes))
+                               if relocating else None)
+        return (np.unique(update.columns.points.node_indices[:, 0]),
+                update.forces_n @ update.columns.directions)
+
+    start_nodes, _ = ForceSensor(robot, RigidTransform(np.eye(3), np.zeros(3)), actuation,
+                                 SenseSettings())._contact_nodes(centre, np.zeros((1, 3)))
+    assert start_nodes[0] != node
+    nodes, estimated = settled(relocating=True)
+    assert list(nodes) == [node]
+    assert np.linalg.norm(estimated - force) < 0.05
+    nodes, _ = settled(relocating=False)
+    assert list(nodes) == list(start_nodes)
+    apart = np.linalg.norm(truth.positions_mm[nodes[0]] - truth.positions_mm[node])
+    assert apart > 3.0  # the contact left a node's spacing off

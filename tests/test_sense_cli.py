@@ -192,4 +192,7 @@ def test_a_lost_frame_does_not_join_the_tare(probes_run):
     lenient.process(0, frames[1])
     assert statuses == ["tare", "lost", "lost"]
     assert strict.tare_left == 2
-    np.testing.assert_array_equal(strict.tare_offsets_mm, lenient.tare_offsets_mm)
+    # the same arithmetic in two sensors, to round-off (numpy's SIMD sums depend on the
+    # arrays' alignment): a lost frame joining the tare would move them by 0.01-1 mm
+    np.testing.assert_allclose(strict.tare_offsets_mm, lenient.tare_offsets_mm, rtol=0,
+                               atol=1e-9)

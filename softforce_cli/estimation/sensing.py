@@ -36,7 +36,6 @@ from softforce_cli.vision.feature_matching import FeatureMatches, match_features
 from softforce_cli.vision.filters import crop_box_from_bounds
 from softforce_cli.vision.pipeline import (
     Observation,
-    VisionResult,
     match_observation,
     observe_frame,
 )
@@ -211,13 +210,16 @@ class ForceSensor:
         if self.auto_tare and len(vision.contacts.centres_mm):
             self.tare_left = 0
         taring = self.tare_left > 0
-        contact_nodes, axes = (np.zeros(0, np.int64), np.zeros((0, 3))) if taring \
-            else self._contact_nodes(vision)
+        centres = np.zeros((0, 3)) if taring or self.known_contact is not None \
+            else vision.contacts.centres_mm
+        centre_axes = self._contact_axes(centres, segmentation)
+        contact_nodes, axes = self._contact_nodes(centres, centre_axes)
         clock = _Clock(timings)
         saved = (self.state, self.tensions)
         try:
             outcome = self.settle(vision.matches, lambda: self._match(segmentation),
-                                  contact_nodes, clock, axes)
+                                  contact_nodes, clock, axes,
+                                  lambda: self._contact_nodes(centres, centre_axes))
         except SolverError:
             self.state, self.tensions = saved
             self.linear = None
@@ -252,21 +254,29 @@ class ForceSensor:
 
     def settle(self, matches: FeatureMatches, rematch: Callable[[], FeatureMatches],
                contact_nodes: np.ndarray, clock: _Clock | None = None,
-               contact_axes: np.ndarray | None = None) -> Update | None:
+               contact_axes: np.ndarray | None = None,
+               relocate: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None
+               ) -> Update | None:
         """One frame's FE updates from its first matches at the current configuration:
         update, then rematch() at the moved configuration and update again, up to
         updates_per_frame times, stopping once an update moved no feature point more than
         rematch_mm. Contact forces act at the mesh nodes contact_nodes (c,) (or at the known
         contact), with force_model "axis" along contact_axes (c, 3) where not NaN (the
-        pushing object's axis); while taring there are none, and the caller adds the frame
-        to the tare (add_tare) once its fit is judged. Returns the last update, or None when
-        too few features match (the configuration is then that of the updates made)."""
+        pushing object's axis), both given again by relocate() at the moved configuration
+        when given; while taring there are none, and the caller adds the frame to the tare
+        (add_tare) once its fit is judged. Returns the last update, or None when too few
+        features match (the configuration is then that of the updates made)."""
         clock = clock or _Clock({})
         taring = self.tare_left > 0
         outcome: Update | None = None
         for _ in range(self.settings.estimation.updates_per_frame):
             if outcome is not None:
                 matches = rematch()
+                if relocate is not None:
+                    # a contact is where the moved surface is nearest it: a probe that
+                    # lands between frames sits millimetres inside the surface the frame
+                    # started from, nearer another part of the body there
+                    contact_nodes, contact_axes = relocate()
                 clock.lap("matching")
             matched_at = self.feature_geometry()[0]
             update = self.update(matches, contact_nodes, clock, taring, contact_axes)
@@ -307,25 +317,31 @@ class ForceSensor:
                               self.settings.vision, camera_mm=self.transform.translation_mm,
                               robot_tree=segmentation.robot_tree)
 
-    def _contact_nodes(self, vision: VisionResult) -> tuple[np.ndarray, np.ndarray]:
-        """(c,) mesh nodes where the detected contacts act (none with a known contact): the
-        surface node nearest to each contact centre, or with contact_at = "feature" the
-        paper's nearest feature point; and (c, 3) the axis of the object pushing there
+    def _contact_axes(self, centres_mm: np.ndarray, segmentation: Segmentation) -> np.ndarray:
+        """(c, 3) the axis of the object pushing at each contact centre (c, 3)
         (vision.contacts.object_axes; NaN where it has none, and not computed unless
         force_model is "axis")."""
-        if self.known_contact is not None:
+        if self.settings.estimation.force_model != "axis" or not len(centres_mm):
+            return np.full((len(centres_mm), 3), np.nan)
+        return object_axes(centres_mm, segmentation.objects.points_mm)
+
+    def _contact_nodes(self, centres_mm: np.ndarray, axes: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+        """(k,) mesh nodes where the contacts at centres_mm (c, 3) act at the current
+        configuration: the surface node nearest to each, or with contact_at = "feature" the
+        paper's nearest feature point, each node once; and (k, 3) the axes (c, 3) of the
+        contacts they were first found for."""
+        if not len(centres_mm):
             return np.zeros(0, dtype=np.int64), np.zeros((0, 3))
-        centres = vision.contacts.centres_mm
         if self.settings.estimation.contact_at == "feature":
-            nodes = self.robot.feature_nodes[vision.contact_features]
+            nodes = self.robot.feature_nodes[
+                nearest_features(centres_mm, self.feature_geometry()[0])]
         else:
             surface = self.robot.mesh.surface_nodes
-            _, nearest = cKDTree(self.mesh_geometry()[0][surface]).query(centres)
+            _, nearest = cKDTree(self.mesh_geometry()[0][surface]).query(centres_mm)
             nodes = surface[np.asarray(nearest, dtype=np.int64)]
         nodes, first = np.unique(nodes, return_index=True)
-        if self.settings.estimation.force_model != "axis":
-            return nodes, np.full((len(nodes), 3), np.nan)
-        return nodes, object_axes(centres, vision.segmentation.objects.points_mm)[first]
+        return nodes, axes[first]
 
     @property
     def tare_offsets_mm(self) -> np.ndarray:
