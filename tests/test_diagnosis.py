@@ -32,6 +32,7 @@ from softforce_cli.diagnosis.selection import (
     effective_sample_size,
     explained_mm,
     explains,
+    indistinct,
     noise_floor_mm,
     worth_refitting,
 )
@@ -489,6 +490,28 @@ def test_fallback_refits_other_targets_that_generalise_and_agree_with_the_table(
     chosen = fallback_candidates(absolute, [heavier], table)
     assert [(s.candidate.label, s.relative) for s in chosen] == [
         ("regional_stiffness[south]", True), ("stiffness_scale", False)]
+
+
+def test_fits_apart_by_a_consistent_but_negligible_difference_are_one():
+    """(selection.indistinct) stiffness_1.5 seed 2: a gravity 0.674 and a body 1.483 as
+    stiff (one model) left held-out errors 0.0014 mm apart, every segment agreeing: below a
+    percent of either they are one fit; 5% apart with the same consistency they are not,
+    nor a percent apart in the mean when the segments disagree by more is that difference
+    significant."""
+    rng = np.random.default_rng(3)
+    before = np.full(8, 0.5)
+    after = 0.16 + 0.01 * rng.random(8)
+
+    def held(mean_squares: np.ndarray) -> HeldOut:
+        return HeldOut(0.7, float(np.sqrt(mean_squares.mean())), before, mean_squares)
+
+    base = held(after)
+    slightly = held(after * 1.008 + 1e-6 * rng.random(8))  # 0.4% in RMS, consistent
+    clearly = held(after * 1.1 + 1e-6 * rng.random(8))  # 5% in RMS, consistent
+    assert indistinct(base, slightly) and indistinct(slightly, base)
+    assert not indistinct(base, clearly)
+    noisy = held(after * 1.1 + 0.04 * np.tile([1.0, -1.0], 4))  # 5%, segments disagreeing
+    assert indistinct(base, noisy)
 
 
 def test_rivals_of_a_named_effect_are_those_its_screening_cannot_beat():

@@ -265,4 +265,5 @@ def group_reason(group: list[str]) -> str:
     known = [reason for pair, reason in GROUP_REASONS.items() if pair <= names]
     return "; ".join(known) if known else (
         "their held-out errors per trajectory segment differ by less than 2 standard "
-        "errors: a recording that loads them differently would separate them")
+        "errors, or by 1% or less: a recording that loads them differently would separate "
+        "them")
