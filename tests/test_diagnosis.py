@@ -823,6 +823,85 @@ def test_the_refit_learns_how_far_the_exact_model_moves(exact_shift):
     assert abs(reported / slope - 1.0) < 0.15
 
 
+def _camera_seeing(depth_mm: float, table_depth_mm: float, robot_shift_mm: float,
+                   frames: int = 6, nodes: int = 40):
+    """A camera at the robot frame's origin looking along +z (the calibration the identity):
+    the robot's faces at `depth_mm` facing it, seen `robot_shift_mm` further than the model
+    puts them in every frame, over a table at `table_depth_mm` seen where it is expected.
+    Returns (inputs, field, table, depth_bias candidate)."""
+    field = _field(np.full((frames, nodes), robot_shift_mm))
+    count = field.frame.size
+    table = Table(np.column_stack([np.linspace(-50, 50, 25), np.zeros(25),
+                                   np.full(25, table_depth_mm)]), np.zeros(25))
+    positions = np.column_stack([np.zeros((count, 2)), np.full(count, depth_mm)])
+    normals = np.tile([0.0, 0.0, 1.0], (count, 1))
+    contexts = tuple(frame_contexts(np.arange(frames) * 0.5, np.zeros((frames, 1))))
+    inputs = Inputs(field, np.zeros(count, dtype=int), normals, positions, np.zeros((1, count)),
+                    ColumnSet(("stiffness",)), contexts, (),
+                    RigidTransform(np.eye(3), np.zeros(3)), np.zeros((1, nodes, 3)),
+                    np.zeros((1, 0)), np.zeros((1, 0, nodes, 3)), table)
+    scale = Candidate((Hypothesis("depth_bias", None, ("scale",), np.zeros(1),
+                                  np.array([-0.1]), np.array([0.1])),))
+    return inputs, field, table, scale
+
+
+def test_the_refit_fits_a_camera_to_the_table_as_its_screening_does():
+    """The robot seen 4.7 mm further than the model (a depth scale of 1% at 470 mm, or the
+    model's own error), the table at 617 mm where it is expected: the depth scale that fits
+    both, the table counting as much as the robot, is 470 x 4.7 / (470^2 + 617^2) = 0.00367
+    (worked by hand). The screening and the exact refit both reach it; before the refit
+    counted the table, it went to the robot's 0.01 and left the table 6.2 mm off."""
+    from types import SimpleNamespace
+
+    from softforce_cli.diagnosis.refit import Prediction, refit
+
+    inputs, field, table, scale = _camera_seeing(470.0, 617.0, 4.7)
+    expected = 470.0 * 4.7 / (470.0**2 + 617.0**2)
+    assert fit_values(scale, inputs, field, False)[0] == pytest.approx(expected, rel=1e-3)
+
+    class Exact:
+        basis = SimpleNamespace(inputs_for=lambda f: inputs, table=table,
+                                robot_from_camera=inputs.robot_from_camera)
+
+        def predict(self, candidate, values):
+            self.values = values
+            return Prediction(np.zeros((1, 40, 3)), np.zeros(6, dtype=int), 0)
+
+        def field(self, prediction):  # a camera's model is exact
+            return Field(field.frame, field.node,
+                         field.mean_mm - scale.shift(self.values, inputs), field.weight)
+
+    fitted = refit(Exact(), scale, np.array([0.01]), False, lambda f, j, v: np.zeros(1))
+    assert fitted.values[0] == pytest.approx(expected, rel=1e-3)
+    # its held-out folds refit it with the table too: each lands on the same value
+    folds = held_out(scale, inputs, fitted.field, np.repeat(np.arange(3), 2),
+                     fitted.evaluated, False, jacobian=fitted.jacobian)
+    robot_left = 4.7 - 470.0 * expected
+    assert folds.rms_after_mm == pytest.approx(robot_left, rel=1e-3)
+
+
+def test_the_secant_leaves_a_cameras_exact_model_alone():
+    """Broyden's update corrects the first-order Jacobian where it is not the exact model:
+    for a pair of a physics effect and a camera, only the physics' row and column move."""
+    from softforce_cli.diagnosis.refit import secant_update
+
+    frames, nodes = 4, 30
+    pattern = np.sin(np.linspace(0, 3, nodes))[None] * np.linspace(1.0, 2.0, frames)[:, None]
+    other = np.cos(np.linspace(0, 5, nodes))[None] * np.ones((frames, 1))
+    jacobian = np.column_stack([pattern.ravel(), other.ravel()])
+    step = np.array([0.1, 0.2])
+    before = _field(np.zeros((frames, nodes)))
+    # the exact model moved the first parameter's half as far as its tangent says
+    after = _field(-(0.5 * 0.1 * pattern + 0.2 * other))
+    free = secant_update(np.eye(2), before, after, jacobian, step, False)
+    kept = secant_update(np.eye(2), before, after, jacobian, step, False,
+                         np.array([False, True]))
+    assert not np.allclose(free[:, 1], [0.0, 1.0])  # Broyden spreads the change over both
+    np.testing.assert_allclose(kept[1], [0.0, 1.0])
+    np.testing.assert_allclose(kept[:, 1], [0.0, 1.0])
+    assert kept[0, 0] < 1.0
+
+
 def test_one_sided_contact_is_the_quadratic_programs_answer():
     """The plate's contact forces (nnls on the compliance's Cholesky factor) against the same
     complementarity problem as a quadratic program solved by cvxpy with Clarabel, and its

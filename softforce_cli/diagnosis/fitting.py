@@ -10,11 +10,14 @@ vector operations on the first-order model (diagnosis.hypotheses): no FE solve.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
 
+from softforce_cli.calibration.rigid import RigidTransform
+from softforce_cli.diagnosis.background import Table
 from softforce_cli.diagnosis.hypotheses import Hypothesis, Inputs
 from softforce_cli.diagnosis.residuals import Field
 
@@ -78,6 +81,52 @@ class Candidate:
             return None
         return inputs.table.misfit_mm(self.effects(values), inputs.robot_from_camera)
 
+    def table_left_mm(self, values: np.ndarray, table: Table | None,
+                      robot_from_camera: RigidTransform) -> np.ndarray | None:
+        """(g,) mm: the observed table's height at its grid points less what the candidate's
+        camera explains, the rows a camera effect's fit adds to the robot's; None for a
+        candidate that moves no camera, or without a table."""
+        if table is None or not self.moves_camera:
+            return None
+        return table.observed_mm - table.shift(self.effects(values), robot_from_camera)
+
+
+@dataclass(frozen=True)
+class TableRows:
+    """The observed table as least-squares rows of a camera effect's fit at some values: its
+    height left unexplained (g,) mm, d shift / d value (g, k), and each row's weight."""
+
+    left_mm: np.ndarray
+    jacobian: np.ndarray
+    weight: float
+
+    def cost(self) -> float:
+        """Weighted sum of squares (mm^2 in the robot's point weights)."""
+        return float(self.weight * self.left_mm @ self.left_mm)
+
+
+def table_row_weight(candidate: Candidate, table: Table | None, robot_weight: float) -> float:
+    """Each table grid point's least-squares weight in a camera effect's fit, given the
+    robot entries' total point weight: the table counts as much as the robot, shared among
+    its grid points; 0 for a candidate that moves no camera, or without a table."""
+    if table is None or not candidate.moves_camera:
+        return 0.0
+    return robot_weight / len(table.observed_mm)
+
+
+def table_rows(candidate: Candidate, table: Table | None, robot_from_camera: RigidTransform,
+               values: np.ndarray, robot_weight: float) -> TableRows | None:
+    """The table's rows of a camera effect's fit at `values` (the robot entries' total point
+    weight `robot_weight`), their Jacobian by central differences (the camera's model is
+    exact); None when the candidate moves no camera, or without a table."""
+    left = candidate.table_left_mm(values, table, robot_from_camera)
+    if left is None:
+        return None
+    # the left heights fall as the shift rises
+    jacobian = -_central_differences(
+        candidate, values, lambda v: candidate.table_left_mm(v, table, robot_from_camera))
+    return TableRows(left, jacobian, table_row_weight(candidate, table, robot_weight))
+
 
 def judged_residuals(entries: Field, left: np.ndarray, jacobian: np.ndarray, relative: bool
                      ) -> tuple[Field, np.ndarray]:
@@ -111,24 +160,20 @@ def fit_values(candidate: Candidate, inputs: Inputs, field: Field, relative: boo
     in `mask` (default all), `field` having the entries of inputs.field. relative: with a
     free static offset o per node (the baseline the model's own discretisation leaves), so
     only what changes across frames counts. A camera effect is fitted to the observed table's
-    height too (inputs.table, diagnosis.background)."""
+    height too (inputs.table, diagnosis.background; table_row_weight)."""
     mask = np.ones(len(field.mean_mm), dtype=bool) if mask is None else mask
     root = np.sqrt(field.weight[mask])
     lower, upper = candidate.lower, candidate.upper
 
-    table = inputs.table if candidate.moves_camera else None
-    # a camera effect must put the table where it is seen as well as the robot: its heights
-    # count as much as the robot's entries (the table has no model error)
-    table_root = None if table is None else np.sqrt(root @ root / len(table.observed_mm))
+    table_root = np.sqrt(table_row_weight(candidate, inputs.table, root @ root))
 
     def residual(values: np.ndarray) -> np.ndarray:
         left = field.mean_mm - candidate.shift(values, inputs)
         if relative:
             left = left - node_offsets(left, field, mask)
-        if table is None:
+        on_table = candidate.table_left_mm(values, inputs.table, inputs.robot_from_camera)
+        if on_table is None:
             return root * left[mask]
-        on_table = table.observed_mm - table.shift(candidate.effects(values),
-                                                   inputs.robot_from_camera)
         return np.concatenate([root * left[mask], table_root * on_table])
 
     if start is not None:
@@ -204,7 +249,10 @@ def held_out(candidate: Candidate, inputs: Inputs, field: Field, segments: np.nd
                 J = J - node_offsets(J, field, train)
                 r = r - node_offsets(r, field, train)
             usable = train & np.isfinite(r) & np.all(np.isfinite(J), axis=1)
-            step = _linear_step(Field(field.frame, field.node, r, field.weight), J, usable)
+            table = table_rows(candidate, inputs.table, inputs.robot_from_camera, values,
+                               float(field.weight[usable].sum()))
+            step = _linear_step(Field(field.frame, field.node, r, field.weight), J, usable,
+                                table)
             step = np.clip(values + step, candidate.lower, candidate.upper) - values
             left = field.mean_mm - jacobian @ step
         after.append(_segment_ms(left, field, train, out, relative))
@@ -228,18 +276,30 @@ def _segment_ms(left: np.ndarray, field: Field, train: np.ndarray, out: np.ndarr
     return float(np.sum(w * left[keep] ** 2) / max(w.sum(), 1e-12))
 
 
-def _linear_step(field: Field, jacobian: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """(k,) argmin sum w (r - J d)^2 over the entries in mask."""
+def _linear_step(field: Field, jacobian: np.ndarray, mask: np.ndarray,
+                 table: TableRows | None = None) -> np.ndarray:
+    """(k,) argmin sum w (r - J d)^2 over the entries in mask (and the table's rows)."""
     w = field.weight[mask]
     J = jacobian[mask]
     normal = (J * w[:, None]).T @ J
+    right = (J * w[:, None]).T @ field.mean_mm[mask]
+    if table is not None:
+        normal = normal + table.weight * table.jacobian.T @ table.jacobian
+        right = right + table.weight * table.jacobian.T @ table.left_mm
     normal += 1e-12 * np.trace(normal) * np.eye(len(normal))
-    return np.linalg.solve(normal, (J * w[:, None]).T @ field.mean_mm[mask])
+    return np.linalg.solve(normal, right)
 
 
 def shift_jacobian(candidate: Candidate, inputs: Inputs, values: np.ndarray) -> np.ndarray:
     """(E, k) d shift / d parameter at `values` (central differences of the first-order model,
     scaled to each parameter's screening range)."""
+    return _central_differences(candidate, values, lambda v: candidate.shift(v, inputs))
+
+
+def _central_differences(candidate: Candidate, values: np.ndarray,
+                         function: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """(m, k) d function / d parameter at `values` (function: (k,) -> (m,)), each step
+    1e-4 of the parameter's screening range, within its bounds."""
     span = candidate.upper - candidate.lower
     columns = []
     for j in range(len(values)):
@@ -247,6 +307,5 @@ def shift_jacobian(candidate: Candidate, inputs: Inputs, values: np.ndarray) -> 
         up, down = values.copy(), values.copy()
         up[j] = min(values[j] + step, candidate.upper[j])
         down[j] = max(values[j] - step, candidate.lower[j])
-        columns.append((candidate.shift(up, inputs) - candidate.shift(down, inputs))
-                       / (up[j] - down[j]))
+        columns.append((function(up) - function(down)) / (up[j] - down[j]))
     return np.stack(columns, axis=1)
