@@ -669,6 +669,73 @@ def test_a_heavier_or_softer_body_within_the_mesh_error_is_not_named(monkeypatch
     assert named(softer(0.95), systematic_mm=2.40)
 
 
+@pytest.mark.parametrize(("depth_pair_mm", "switched"), [(0.45, True), (0.4805, False),
+                                                       (0.52, False)])
+def test_the_cameras_are_compared_again_with_the_mesh_allowance(monkeypatch, sample_robot,
+                                                                 depth_pair_mm, switched):
+    """(pipeline._camera_with_the_mesh) The converged body's 1% depth scale, first named a
+    camera moved along its axis (absolute held-out 0.55 mm, the depth scale alone 0.72):
+    each camera effect fitted again with a stiffness scale bounded to the mesh's bracket
+    [1 / 1.14, 1], the depth scale leaves 0.45 mm and the move 0.48, so the depth scale is
+    the first effect. Pairs the data cannot tell apart (0.4805 against 0.48), or the move's
+    pair the better, leave the move named. The depth scale's pair is then its second effect
+    (the first-order screening of a second effect had found none for it)."""
+    monkeypatch.setattr(pipeline, "element_bracket",
+                        lambda solutions, cache: ElementBracket(1.14, 1.29))
+    chosen = []
+
+    def select_first(result, judge, first):  # no second effect found
+        chosen.append(first)
+        result.selected = [first]
+
+    monkeypatch.setattr(pipeline, "_select_first", select_first)
+    spread = np.linspace(-0.01, 0.01, 8)
+
+    def held(rms_mm: float) -> HeldOut:
+        return HeldOut(4.63, rms_mm, np.full(8, 4.63**2), rms_mm**2 + spread)
+
+    pair_mm = {"extrinsic_offset": 0.48, "depth_bias": depth_pair_mm}
+    alone_mm = {"extrinsic_offset": 0.55, "depth_bias": 0.72}
+    allowances = []
+
+    class Judge:
+        table, floor = None, 0.38
+
+        def check_stop(self) -> None:
+            pass
+
+        def report(self, *progress) -> None:
+            pass
+
+        def screen(self, candidate, relative, start=None):
+            return Screened(candidate, start, None, relative, None, None)
+
+        def final(self, screened):
+            hypotheses = screened.candidate.hypotheses
+            name = hypotheses[0].name
+            if len(hypotheses) > 1:
+                allowances.append(hypotheses[1])
+            figure = (pair_mm if len(hypotheses) > 1 else alone_mm)[name]
+            fitted = Refit(screened.candidate, screened.values, None, None, None, 0,
+                           screened.values)
+            return Final(screened, fitted, held(figure), None, True, None)
+
+    gains = np.full(8, 0.3)
+    move, scale = (_screened(name, None, gains, relative=False)
+                   for name in ("extrinsic_offset", "depth_bias"))
+    result = Diagnosis(sample_robot, None)
+    result.screened = [move, scale, _screened("gravity", None, gains)]
+    result.selected = result.finals = [Judge().final(move)]
+    pipeline._camera_with_the_mesh(result, Judge(), None, None)
+    assert [h.name for h in allowances] == ["stiffness_scale"] * 2
+    np.testing.assert_allclose([allowances[0].lower[0], allowances[0].upper[0]], [1 / 1.14, 1])
+    assert result.camera_with_mesh_mm == pytest.approx(pair_mm)
+    assert [f.candidate.label for f in chosen] == (["depth_bias"] if switched else [])
+    # the allowance that decided the camera is its second effect, none other being found
+    assert [f.candidate.label for f in result.selected] == (
+        ["depth_bias", "depth_bias + stiffness_scale"] if switched else ["extrinsic_offset"])
+
+
 def test_a_group_says_why_its_effects_are_one_signature():
     """The summary's group line gives the known reason for a known pair, the trajectory for
     two targets of one effect, and the statistical reason otherwise."""

@@ -194,6 +194,12 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
                      f"{bracket.load_scale:.3g} times as much, {bracket.surface_rms_mm:.2f} mm "
                      "RMS away, and the two bracket the converged body (docs/locking.md); the "
                      "mesh is the likely cause, not named (a finer mesh would tell)")
+    if len(diagnosis.camera_with_mesh_mm) > 1:
+        compared = ", ".join(f"{label} {mm:.2f}" for label, mm in
+                             sorted(diagnosis.camera_with_mesh_mm.items(), key=lambda kv: kv[1]))
+        lines.append("the camera effects, each fitted with the mesh's own error (a body up to "
+                     f"{diagnosis.mesh_bracket.load_scale:.3g} times as compliant, as the other "
+                     f"quadratic element on this mesh): held-out {compared} mm")
     lines += [plate_resolution_line(diagnosis.robot, height) for final in diagnosis.selected
               if (height := final.candidate.plate_height_mm(final.values)) is not None]
     for group in diagnosis.groups:
