@@ -779,7 +779,8 @@ def test_a_refit_past_what_the_model_can_solve_pulls_back_and_says_where():
                                    np.array([0.5]), np.array([2.0])),))
 
     class Snapping:
-        basis = SimpleNamespace(inputs_for=lambda field: inputs)
+        basis = SimpleNamespace(inputs_for=lambda field: inputs, table=None,
+                                robot_from_camera=inputs.robot_from_camera)
 
         def predict(self, candidate, values):
             if values[0] < 0.75:
@@ -824,7 +825,8 @@ def test_a_refit_pulled_back_learns_from_the_exact_shift_to_where_it_could_solve
         return mobility * (1.0 - 1.0 / scale)
 
     class Snapping:
-        basis = SimpleNamespace(inputs_for=lambda field: inputs)
+        basis = SimpleNamespace(inputs_for=lambda field: inputs, table=None,
+                                robot_from_camera=inputs.robot_from_camera)
         nominal_field = _field((moved(truth) - moved(1.0)) * pattern)
 
         def predict(self, candidate, values):
@@ -873,7 +875,8 @@ def test_the_refit_learns_how_far_the_exact_model_moves(exact_shift):
         return exact_shift(1.0 - 1.0 / scale)
 
     class Exact:
-        basis = SimpleNamespace(inputs_for=lambda field: inputs)
+        basis = SimpleNamespace(inputs_for=lambda field: inputs, table=None,
+                                robot_from_camera=inputs.robot_from_camera)
 
         def predict(self, candidate, values):
             self.values = values

@@ -2,7 +2,8 @@
 the responses of the nodes a plate may touch) -> nominal residuals -> every hypothesis
 screened on the first-order model (fit and leave-one-segment-out) -> the best refitted on
 the exact model -> forward selection of up to two effects -> a camera effect only the
-markers see, when the clouds find nothing -> verdict, groups, location."""
+markers see, when the clouds find nothing -> a camera chosen with the mesh's allowance ->
+the mesh's own error left unnamed -> verdict, groups, location."""
 
 from __future__ import annotations
 

@@ -312,8 +312,6 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
     basis = exact.basis
 
     def table(field: Field, at: np.ndarray) -> TableRows | None:
-        if not candidate.moves_camera:
-            return None
         return table_rows(candidate, basis.table, basis.robot_from_camera, at,
                           float(field.weight.sum()))
 
@@ -340,7 +338,7 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
     jacobian = tangent(field, values)
     # a camera's first-order shift is the exact model's (diagnosis.hypotheses): the secant
     # corrects the others only
-    exact_shift = np.concatenate([np.full(len(h.free), h.kind == "sensor")
+    camera_parameters = np.concatenate([np.full(len(h.free), h.kind == "sensor")
                                   for h in candidate.hypotheses])
     secant = np.eye(len(values))
     if unreached:
@@ -351,7 +349,7 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
         at_nominal = exact.basis.inputs_for(nominal)
         gain = path_gain(nominal, field, candidate.shift(values, at_nominal)
                          - candidate.shift(neutral, at_nominal), relative)
-        secant = np.diag(np.where(exact_shift, 1.0, gain))
+        secant = np.diag(np.where(camera_parameters, 1.0, gain))
     span = candidate.upper - candidate.lower
     for _ in range(REFIT_STEPS):
         if stop_requested():
@@ -377,7 +375,7 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
         if moved is None:
             break
         secant = secant_update(secant, field, trial_field, jacobian,
-                               coordinates.step(values, trial), relative, exact_shift)
+                               coordinates.step(values, trial), relative, camera_parameters)
         values, prediction, field = trial, moved, trial_field
         jacobian = tangent(field, values)
     return Refit(candidate, values, field, jacobian @ secant / coordinates.per_unit(values),
