@@ -65,10 +65,14 @@ class Table:
         moved = observed_points_robot(self.points_mm, effects, robot_from_camera)
         return moved[:, 2] - self.points_mm[:, 2]
 
+    def left_mm(self, effects: Iterable[Effect], robot_from_camera: RigidTransform
+                ) -> np.ndarray:
+        """(g,) mm: the observed table height less what `effects` explain."""
+        return self.observed_mm - self.shift(effects, robot_from_camera)
+
     def misfit_mm(self, effects: Iterable[Effect], robot_from_camera: RigidTransform) -> float:
         """RMS (mm) of the observed table height less what `effects` explain."""
-        left = self.observed_mm - self.shift(effects, robot_from_camera)
-        return float(np.sqrt(np.mean(left**2)))
+        return float(np.sqrt(np.mean(self.left_mm(effects, robot_from_camera) ** 2)))
 
 
 def observed_table(planes: Iterable[tuple[np.ndarray, float] | None],

@@ -88,7 +88,7 @@ class Candidate:
         candidate that moves no camera, or without a table."""
         if table is None or not self.moves_camera:
             return None
-        return table.observed_mm - table.shift(self.effects(values), robot_from_camera)
+        return table.left_mm(self.effects(values), robot_from_camera)
 
 
 @dataclass(frozen=True)
