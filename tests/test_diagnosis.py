@@ -18,15 +18,18 @@ from softforce_cli.diagnosis.pipeline import (
     better_rival,
     camera_seen_by_markers,
     fallback_candidates,
+    leaves_static_beyond,
     load_scale_twin,
     names_the_mismatch,
     screened_rivals,
     second_keeps_the_first,
+    static_mm,
 )
 from softforce_cli.diagnosis.refit import ExactModel, Refit
 from softforce_cli.diagnosis.report import group_reason
 from softforce_cli.diagnosis.residuals import Field, point_residuals
 from softforce_cli.diagnosis.selection import (
+    UNEXPLAINED_MM,
     clear_improvement,
     confidence_intervals,
     effective_sample_size,
@@ -438,6 +441,58 @@ def test_an_effect_fitted_on_absolute_residuals_must_explain_what_changes_too(re
     assert names_the_mismatch(final, 0.95, 0.27) is named
     rejected = Final(screened, None, screened.heldout, screened.ci95, False, None, relative)
     assert not names_the_mismatch(rejected, 0.95, 0.27)
+
+
+def test_the_static_residual_is_each_nodes_mean_over_the_frames():
+    """(pipeline.static_mm) Node 0 reads 1 and 3 mm in two frames (mean 2, one point each),
+    node 1 reads -1 mm twice (three points each), node 2 is unseen: the RMS of the means 2
+    and -1 weighted by their 2 and 6 points."""
+    field = Field(np.array([0, 1, 0, 1]), np.array([0, 0, 1, 1]),
+                  np.array([1.0, 3.0, -1.0, -1.0]), np.array([1.0, 1.0, 3.0, 3.0]))
+    assert static_mm(field, 3) == pytest.approx(np.sqrt((2 * 2.0**2 + 6 * 1.0**2) / 8))
+
+
+@pytest.mark.parametrize(("static_after_mm", "channel", "unreached", "beyond"), [
+    (1.402, "clouds", False, True),  # a hidden mass on the north elbow as a softer north arm
+    (1.402, "markers", False, False),  # a camera judged on the markers is judged there
+    (0.240, "clouds", False, False),  # west slack, with the mesh's signature
+    (1.075, "clouds", False, False),  # what the coarse mesh alone leaves
+    # creep of relaxation 0.5, its refit stopped where the coarse model has no equilibrium
+    (4.672, "clouds", True, False),
+])
+def test_a_named_effect_leaves_no_more_static_residual_than_the_mesh_error(
+        monkeypatch, sample_robot, static_after_mm, channel, unreached, beyond):
+    """(pipeline._static_limit, leaves_static_beyond) Figures of the study's cases (seed 1;
+    the converged body but creep): the two quadratic elements on the coarse Diamond are
+    1.288 mm RMS apart, the most static residual a named effect may leave, unless its refit
+    stopped where the model has no equilibrium further on. The limit asks for the other
+    element's solve only once an effect is selected, and without its equilibrium it is the
+    absolute rule's UNEXPLAINED_MM."""
+    solves = []
+
+    def bracket(solutions, cache):
+        solves.append(1)
+        return ElementBracket(1.1379, 1.288)
+
+    monkeypatch.setattr(pipeline, "element_bracket", bracket)
+    result = Diagnosis(sample_robot, None)
+    assert pipeline._static_limit(result, None, None) == UNEXPLAINED_MM and not solves
+    screened = _screened("regional_stiffness", "north", np.full(8, 0.2), relative=True)
+    screened = Screened(screened.candidate, screened.values, screened.heldout, True,
+                        screened.ci95, None, channel)
+    stopped = (SolverError("no equilibrium at inputs (6, 6, 6, 6)"),) if unreached else ()
+    fitted = Refit(screened.candidate, screened.values, None, None, None, 18, screened.values,
+                   stopped)
+    final = Final(screened, fitted, screened.heldout, screened.ci95, True, None,
+                  screened.heldout)
+    result.selected = [final]
+    limit = pipeline._static_limit(result, None, None)
+    assert limit == 1.288 and len(solves) == 1
+    assert leaves_static_beyond(final, static_after_mm, limit) is beyond
+    monkeypatch.setattr(pipeline, "element_bracket", lambda solutions, cache: None)
+    unsolved = Diagnosis(sample_robot, None)
+    unsolved.selected = [final]
+    assert pipeline._static_limit(unsolved, None, None) == UNEXPLAINED_MM
 
 
 def test_a_second_effect_must_not_undo_the_first():

@@ -181,12 +181,18 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
         lines.append(f"a structured mismatch ({evidence['systematic_final_mm']:.2f} mm above "
                      f"the noise floor) that no effect of the library explains, in {where}")
         if diagnosis.partial:
-            # the figures that decide a name: what changes across frames (selection)
+            # the figures that decide a name: what changes across frames (selection), and
+            # what stays the same in every frame (pipeline._static_limit)
             lines.append(f"{', '.join(diagnosis.partial)} fits part of it, too little to name "
                          "(what changes across frames, held-out relative to a static "
                          f"baseline: {evidence['heldout_relative_nominal_mm']:.2f} -> "
                          f"{evidence['heldout_relative_final_mm']:.2f} mm, noise floor "
-                         f"{diagnosis.noise_floor_mm:.2f} mm): physics outside the library?")
+                         f"{diagnosis.noise_floor_mm:.2f} mm"
+                         + (f"; what stays the same in every frame: "
+                            f"{evidence['static_final_mm']:.2f} mm left, more than the "
+                            f"{evidence['static_limit_mm']:.2f} mm this mesh's own error "
+                            "explains" if evidence["static_beyond_limit"] else "")
+                         + "): physics outside the library?")
     if diagnosis.within_mesh:
         bracket = diagnosis.mesh_bracket
         lines.append(f"{', '.join(diagnosis.within_mesh)} fits it, but not beyond this mesh's "
