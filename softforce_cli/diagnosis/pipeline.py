@@ -981,9 +981,9 @@ def _static_limit(result: Diagnosis, solutions: StateSolutions, cache: SolveCach
     coarse Diamond), or UNEXPLAINED_MM without it. An effect that explains what changes
     across frames but leaves the shape they share further off than the mesh could is a
     partial fit of something else: against the converged body a hidden 40 g mass on the north
-    elbow fits as a north arm 0.80 as stiff, to 1.22 times the noise floor of the change
-    across frames, and leaves 1.39-1.40 mm static (the library's effects there leave
-    0.29-0.52 mm with their second effect; the clean recording, nothing fitted, 1.07 mm)."""
+    elbow fits as a north arm 0.80 as stiff, to 1.18-1.22 times the noise floor of the change
+    across frames, and leaves 1.39-1.41 mm static (the library's effects there leave
+    0.21-0.47 mm; the clean recording, nothing fitted, 1.08 mm)."""
     if result.selected and result.mesh_bracket is None:
         result.mesh_bracket = element_bracket(solutions, cache)
     bracket = result.mesh_bracket
