@@ -442,7 +442,7 @@ def _within_mesh(result: Diagnosis, solutions: StateSolutions, cache: SolveCache
               if (scale := load_scale(final, result.robot)) is not None]
     if not scales:
         return
-    bracket = result.mesh_bracket = element_bracket(solutions, cache)
+    bracket = _mesh_bracket(result, solutions, cache)
     if bracket is None or systematic_mm(result.nominal.rms(), result.noise_floor_mm) > (
             bracket.surface_rms_mm):
         return
@@ -475,7 +475,7 @@ def _camera_with_the_mesh(result: Diagnosis, judge: _Judge, solutions: StateSolu
     if (first.screened.channel != "clouds" or first.screened.relative
             or first.candidate.hypotheses[0].kind != "sensor"):
         return
-    bracket = result.mesh_bracket = element_bracket(solutions, cache)
+    bracket = _mesh_bracket(result, solutions, cache)
     if bracket is None or bracket.load_scale == 1.0:
         return
     stiffness = sorted((1.0, 1.0 / bracket.load_scale))
@@ -969,9 +969,14 @@ def static_mm(field: Field, node_count: int) -> float:
     """The residual that stays the same in every frame: the RMS over the seen nodes of each
     node's mean residual (node_systematic_mm), weighted by their points (mm)."""
     mean, weight = node_systematic_mm(field, node_count)
-    seen = weight > 0
-    return float(np.sqrt(np.average(mean[seen] ** 2, weights=weight[seen]))) if seen.any() \
-        else 0.0
+    return _node_rms(mean, weight, weight > 0)
+
+
+def _node_rms(mean_mm: np.ndarray, weight: np.ndarray, mask: np.ndarray) -> float:
+    """RMS (mm) of per-node means (n,) over the nodes in mask (n,), weighted by their points
+    (n,); 0 for none."""
+    return (float(np.sqrt(np.average(mean_mm[mask] ** 2, weights=weight[mask])))
+            if mask.any() else 0.0)
 
 
 def _static_limit(result: Diagnosis, solutions: StateSolutions, cache: SolveCache) -> float:
@@ -984,10 +989,17 @@ def _static_limit(result: Diagnosis, solutions: StateSolutions, cache: SolveCach
     elbow fits as a north arm 0.80 as stiff, to 1.18-1.22 times the noise floor of the change
     across frames, and leaves 1.39-1.41 mm static (the library's effects there leave
     0.21-0.47 mm; the clean recording, nothing fitted, 1.08 mm)."""
-    if result.selected and result.mesh_bracket is None:
-        result.mesh_bracket = element_bracket(solutions, cache)
-    bracket = result.mesh_bracket
+    bracket = _mesh_bracket(result, solutions, cache) if result.selected else None
     return UNEXPLAINED_MM if bracket is None else bracket.surface_rms_mm
+
+
+def _mesh_bracket(result: Diagnosis, solutions: StateSolutions, cache: SolveCache
+                  ) -> ElementBracket | None:
+    """result.mesh_bracket (solves.element_bracket), solved the first time it is asked for
+    (again only if that solve failed)."""
+    if result.mesh_bracket is None:
+        result.mesh_bracket = element_bracket(solutions, cache)
+    return result.mesh_bracket
 
 
 def _location(robot: Robot, field: Field, selected: list[Final]) -> dict:
@@ -996,13 +1008,10 @@ def _location(robot: Robot, field: Field, selected: list[Final]) -> dict:
     n = robot.mesh.node_count
     mean, weight = node_systematic_mm(field, n)
     masks = {name: mask[:n] for name, mask in node_regions(robot).items()}
-    per_region = {}
-    for name, mask in masks.items():
-        seen = mask & (weight > 0)
-        if seen.any():
-            per_region[name] = float(np.sqrt(np.average(mean[seen] ** 2, weights=weight[seen])))
     seen = weight > 0
-    overall = static_mm(field, n)
+    per_region = {name: _node_rms(mean, weight, mask & seen)
+                  for name, mask in masks.items() if (mask & seen).any()}
+    overall = _node_rms(mean, weight, seen)
     regions = sorted((r for r, v in per_region.items() if v > REGION_FACTOR * overall),
                      key=lambda r: -per_region[r])
     targets = [h.target for f in selected for h in f.candidate.hypotheses if h.target]
