@@ -20,8 +20,10 @@ $(STAMP): pyproject.toml scripts/install_system_packages.sh
 demo: setup
 	bash scripts/demo.sh $(OUT)/demo
 
+# One test file per worker process (its module fixtures are built once), one per core, at
+# most four (each holds FE models of a few hundred MB); one BLAS thread each.
 test: setup
-	OPENBLAS_NUM_THREADS=1 $(BIN)/pytest -q
+	OPENBLAS_NUM_THREADS=1 $(BIN)/pytest -q --numprocesses=auto --maxprocesses=4 --dist loadfile
 
 lint: setup
 	$(BIN)/ruff check softforce_cli tests scripts benchmarks
