@@ -1,11 +1,14 @@
-"""The reduced model's one-BLAS-thread context, read back through threadpoolctl's own query."""
+"""The one-BLAS-thread context (a reduced model's products, a diagnosis' fits), read back through
+threadpoolctl's own query."""
 
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 import pytest
 from threadpoolctl import threadpool_info, threadpool_limits
 
-from softforce_cli.fem.reduction.threads import on_one_blas_thread, one_blas_thread
+from softforce_cli.fem.threads import on_one_blas_thread, one_blas_thread
 
 
 def blas_threads() -> dict[str, int]:
@@ -37,3 +40,35 @@ def test_a_wrapped_function_runs_on_one_thread_and_restores_after_an_error():
         with pytest.raises(ValueError, match="inside"):
             failing()
         assert blas_threads() == before
+
+
+def test_a_diagnosis_fits_on_one_thread(monkeypatch, sample_robot):
+    """diagnose_observations' fits (the screening's and refits' thousands of small products)
+    run on one BLAS thread, read back as the screening starts; the FE solves before them
+    keep the threads."""
+    from softforce_cli.diagnosis import pipeline
+    from softforce_cli.diagnosis.solves import SolveCache
+
+    seen = {}
+
+    def stage(name, returned=None):
+        def record(*args, **kwargs):
+            seen[name] = blas_threads()
+            if returned is None:
+                raise pipeline.DiagnosisError("stopped at the screening")
+            return returned
+        return record
+
+    def states(result):
+        result.states = SimpleNamespace(actuation=None)
+        return ()
+
+    monkeypatch.setattr(pipeline, "_states", states)
+    monkeypatch.setattr(pipeline, "solve_states", stage("solves", returned=object()))
+    monkeypatch.setattr(pipeline, "_nominal", stage("nominal", returned=object()))
+    monkeypatch.setattr(pipeline, "_screen_hypotheses", stage("screening"))
+    with (threadpool_limits(limits=2, user_api="blas"),
+          pytest.raises(pipeline.DiagnosisError, match="screening")):
+        pipeline.diagnose_observations(sample_robot, None, SolveCache(None))
+    assert 2 in seen["solves"].values() and 2 in seen["nominal"].values()
+    assert set(seen["screening"].values()) == {1}

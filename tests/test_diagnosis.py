@@ -10,7 +10,7 @@ from softforce_cli.diagnosis import pipeline, refit, support
 from softforce_cli.diagnosis.background import Table
 from softforce_cli.diagnosis.basis import build_basis
 from softforce_cli.diagnosis.fitting import Candidate, HeldOut, fit_values, held_out
-from softforce_cli.diagnosis.hypotheses import Hypothesis, Inputs
+from softforce_cli.diagnosis.hypotheses import Hypothesis, Inputs, interpolated_shift
 from softforce_cli.diagnosis.pipeline import (
     Diagnosis,
     Final,
@@ -51,6 +51,7 @@ from softforce_cli.diagnosis.solves import (
 from softforce_cli.diagnosis.states import States, group_states, trajectory_segments
 from softforce_cli.diagnosis.support import (
     contact_candidates,
+    contact_cholesky,
     one_sided_contact,
     rim_heights_mm,
     support_basis,
@@ -293,6 +294,35 @@ def test_sensitivity_columns_match_re_solved_equilibria(diamond_state, column, e
     # the rigid give leaves out the clamp's own distortion: 5.5% of the 3 mm sink at 2 N/mm
     limit = 0.08 if column == "base_compliance" else 0.02
     assert np.linalg.norm(predicted - expected) < limit * np.linalg.norm(expected)
+
+
+def test_an_actuation_effect_moves_each_frame_from_its_nearest_state_to_first_order():
+    """interpolated_shift against the formula entry by entry: the state k nearest each
+    frame's effective inputs u, x_k + J_k (u - u_k) at the entry's node, along its normal,
+    less the predicted position (frames nearest their own state and others alike)."""
+    rng = np.random.default_rng(7)
+    states, nodes, cables, frames, count = 5, 30, 2, 12, 400
+    library = rng.normal(size=(states, nodes, 3))
+    columns = rng.normal(size=(states, nodes, cables, 3))
+    library_inputs = rng.uniform(0.0, 8.0, size=(states, cables))
+    of_frame = rng.integers(0, states, frames)
+    frame, node = rng.integers(0, frames, count), rng.integers(0, nodes, count)
+    state = of_frame[frame]
+    normals = rng.normal(size=(count, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    field = Field(frame, node, np.zeros(count), np.ones(count))
+    inputs = Inputs(field, state, normals, library[state, node], np.zeros((0, count)),
+                    ColumnSet(()), (), ("north", "south"), RigidTransform(np.eye(3),
+                    np.zeros(3)), library, library_inputs, columns)
+    effective = library_inputs[of_frame] + rng.normal(scale=1.5, size=(frames, cables))
+    nearest = np.abs(effective[:, None] - library_inputs[None]).sum(axis=2).argmin(axis=1)
+    assert 0 < np.mean(nearest == of_frame) < 1  # both kinds of frame
+    expected = np.empty(count)
+    for e in range(count):
+        k, change = nearest[frame[e]], effective[frame[e]] - library_inputs[nearest[frame[e]]]
+        moved = library[k, node[e]] + change @ columns[k, node[e]]
+        expected[e] = (moved - library[state[e], node[e]]) @ normals[e]
+    np.testing.assert_allclose(interpolated_shift(effective, inputs), expected, atol=1e-12)
 
 
 def test_refit_admission_without_the_size_rule_still_asks_for_generalisation():
@@ -1036,7 +1066,7 @@ def test_one_sided_contact_is_the_quadratic_programs_answer():
     shape = rng.normal(size=(12, 12))
     compliance = shape @ shape.T / 12 + 0.2 * np.eye(12)
     gap = rng.normal(size=12)
-    forces = one_sided_contact(compliance, gap)
+    forces = one_sided_contact(contact_cholesky(compliance), gap)
     lam = cvxpy.Variable(12)
     cvxpy.Problem(cvxpy.Minimize(0.5 * cvxpy.quad_form(lam, compliance) + gap @ lam),
                   [lam >= 0]).solve(solver=cvxpy.CLARABEL)

@@ -51,6 +51,7 @@ from softforce_cli.diagnosis.solves import (
 from softforce_cli.diagnosis.states import States, group_states, trajectory_segments
 from softforce_cli.diagnosis.support import support_basis
 from softforce_cli.errors import SolverError
+from softforce_cli.fem.threads import one_blas_thread
 from softforce_cli.model.effects import FrameContext, frame_contexts
 from softforce_cli.model.regions import node_regions
 from softforce_cli.model.robot import Robot
@@ -273,17 +274,21 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
         if solutions is None:
             raise _StopRequestedError
         judge = _nominal(result, solutions, columns, cache, contexts, report, stop_requested)
-        result.stage = "screening"
-        _screen_hypotheses(result, judge)
-        _screen_markers(result, solutions, judge.exact.basis, judge.segments, judge.frames)
-        result.stage = "refit"
-        _first_effects(result, judge)
-        _select(result, judge)
-        _camera_with_the_mesh(result, judge, solutions, cache)
-        _within_mesh(result, solutions, cache)
-        result.stage = "verdict"
-        _verdict(result, judge, solutions, cache)
-        result.stage = "done"
+        # the fits' thousands of small products on one BLAS thread (fem.threads); the
+        # solves and the plate's responses above keep the threads their large products use
+        with one_blas_thread():
+            result.stage = "screening"
+            _screen_hypotheses(result, judge)
+            _screen_markers(result, solutions, judge.exact.basis, judge.segments,
+                            judge.frames)
+            result.stage = "refit"
+            _first_effects(result, judge)
+            _select(result, judge)
+            _camera_with_the_mesh(result, judge, solutions, cache)
+            _within_mesh(result, solutions, cache)
+            result.stage = "verdict"
+            _verdict(result, judge, solutions, cache)
+            result.stage = "done"
     except _StopRequestedError:
         result.interrupted = True
     return result

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
@@ -71,6 +71,7 @@ class SupportBasis:
     responses: np.ndarray
     lower_mm: float
     upper_mm: float
+    _factors: dict = field(default_factory=dict, init=False, repr=False)
 
     def forces_n(self, height_mm: float) -> np.ndarray:
         """(U, m) N: the plate's upward force on each node at every distinct input."""
@@ -79,9 +80,19 @@ class SupportBasis:
         for u, z in enumerate(self.heights_mm):
             gap = z[above] - height_mm
             if (gap < 0.0).any():
-                forces[u, above] = one_sided_contact(
-                    self.compliance[u][np.ix_(above, above)], gap)
+                forces[u, above] = one_sided_contact(self._cholesky(u, above), gap)
         return forces
+
+    def _cholesky(self, u: int, above: np.ndarray) -> np.ndarray:
+        """The lower Cholesky factor of input u's compliance among the nodes `above` (m,)
+        bool, kept per set of nodes: a fit of the plate's height crosses a node's rest
+        height only now and then, and asks for the same factors at every evaluation."""
+        key = (u, above.tobytes())
+        factor = self._factors.get(key)
+        if factor is None:
+            factor = self._factors[key] = contact_cholesky(
+                self.compliance[u][np.ix_(above, above)])
+        return factor
 
     def motion_mm(self, height_mm: float) -> np.ndarray:
         """(S, n, 3) mm: every mesh node's motion with a plate at height_mm (robot frame), per
@@ -89,20 +100,25 @@ class SupportBasis:
         forces = self.forces_n(height_mm)
         motion = np.zeros((len(forces), *self.responses.shape[2:]))
         for u in np.flatnonzero(forces.any(axis=1)):
-            motion[u] = np.tensordot(forces[u], self.responses[u], axes=1)
+            pressed = np.flatnonzero(forces[u])  # a plate props a few of the m nodes
+            motion[u] = np.tensordot(forces[u, pressed], self.responses[u, pressed], axes=1)
         return motion[self.of_state]
 
 
-def one_sided_contact(compliance: np.ndarray, gap_mm: np.ndarray) -> np.ndarray:
-    """(m,) N: lam >= 0 with gap + C lam >= 0 and lam . (gap + C lam) = 0, for a symmetric
-    positive definite compliance C (m, m) mm/N and gaps (m,) mm (negative: below the plane).
+def contact_cholesky(compliance: np.ndarray) -> np.ndarray:
+    """(m, m) lower Cholesky factor of a compliance (m, m) mm/N, symmetrised first (what
+    one_sided_contact solves with)."""
+    return scipy.linalg.cholesky(0.5 * (compliance + compliance.T), lower=True)
 
-    With C = L L^T, min 1/2 lam^T C lam + gap^T lam = 1/2 |L^T lam + L^-1 gap|^2 - const,
-    a non-negative least-squares problem (scipy's nnls, an active-set method: exact in
-    finitely many steps).
+
+def one_sided_contact(lower: np.ndarray, gap_mm: np.ndarray) -> np.ndarray:
+    """(m,) N: lam >= 0 with gap + C lam >= 0 and lam . (gap + C lam) = 0, for a symmetric
+    positive definite compliance C = L L^T (mm/N) given by its lower Cholesky factor L
+    (m, m; contact_cholesky) and gaps (m,) mm (negative: below the plane).
+
+    min 1/2 lam^T C lam + gap^T lam = 1/2 |L^T lam + L^-1 gap|^2 - const, a non-negative
+    least-squares problem (scipy's nnls, an active-set method: exact in finitely many steps).
     """
-    symmetric = 0.5 * (compliance + compliance.T)
-    lower = scipy.linalg.cholesky(symmetric, lower=True)
     target = -scipy.linalg.solve_triangular(lower, gap_mm, lower=True)
     return scipy.optimize.nnls(lower.T, target)[0]
 

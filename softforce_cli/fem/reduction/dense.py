@@ -6,7 +6,7 @@ import numpy as np
 import scipy.linalg
 
 from softforce_cli.errors import SolverError
-from softforce_cli.fem.reduction.threads import on_one_blas_thread
+from softforce_cli.fem.threads import on_one_blas_thread
 
 
 class DenseFactorization:

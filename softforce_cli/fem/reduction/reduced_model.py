@@ -40,7 +40,7 @@ from softforce_cli.fem.reduction.dense import DenseFactorization
 from softforce_cli.fem.reduction.ecsw import point_operators
 from softforce_cli.fem.reduction.starts import StartLibrary
 from softforce_cli.fem.reduction.tangent import TANGENT_DTYPE, ReducedTangent
-from softforce_cli.fem.reduction.threads import on_one_blas_thread
+from softforce_cli.fem.threads import on_one_blas_thread
 
 # An actuation beyond the training box by more than this fraction of the box's width warns.
 BOX_MARGIN = 0.1

@@ -1,12 +1,18 @@
-"""One BLAS thread for a reduced model's dense products.
+"""One BLAS thread for small dense products: a reduced model's, a diagnosis' fits.
 
 numpy and scipy each load an OpenBLAS with its own pool of threads, and on two cores the
 pools contend: a reduced model's products are small (r ~ 200 columns; an LU of r x r), so
 threads only add wake-ups and spinning. Measured on the coarse Diamond (200 modes): an
 update took 24 ms with the pools' two threads and 14 ms on one, an LU of K_r 16 ms against
 0.25 ms, a static solve 291 ms against 150 ms with another job on the machine
-(docs/reduced_model.md). threadpoolctl's controller is made when this module is imported,
-after numpy and scipy.linalg, so it sees both libraries.
+(docs/reduced_model.md). A diagnosis' fits are thousands of such products (least squares on
+60,000 residual entries, Cholesky factors of 200 x 200 contact compliances): the bench's
+200-frame diagnosis, its solves cached, took 150 s with two threads and 128 s with one
+(2026-11-30). Its solves and the plate's responses (200 right-hand sides a state) keep
+their threads: 21 s for those responses with two, 25-26 s with one.
+threadpoolctl's controller is made when this module is imported, after numpy and
+scipy.linalg, so it sees both libraries (cvxopt's own OpenBLAS, which CHOLMOD's
+factorisations use, runs one thread already).
 
 A sensing update enters this context about a dozen times, nested too: it reads and sets the
 libraries' thread counts directly (about 2 us, nothing when they are already one) rather than
