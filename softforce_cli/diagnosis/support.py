@@ -45,6 +45,10 @@ MIN_SINK_MM = 0.5
 # At most this many nodes, the lowest reaching: each costs a solve per input, n x 3 floats of
 # memory per input and a column of every contact problem (118 on the coarse Diamond).
 MAX_CONTACT_NODES = 200
+# Cholesky factors of the contact compliances kept for the plate's fits (SupportBasis): one per
+# distinct input and set of nodes above the plate, at most MAX_CONTACT_NODES^2 floats each
+# (0.3 MB): a fit visits a few such sets, and this bounds the memory to 40 MB.
+KEPT_FACTORS = 128
 # Bump when what the cached responses mean changes.
 SUPPORT_VERSION = 1
 
@@ -90,6 +94,8 @@ class SupportBasis:
         key = (u, above.tobytes())
         factor = self._factors.get(key)
         if factor is None:
+            if len(self._factors) >= KEPT_FACTORS:
+                self._factors.clear()
             factor = self._factors[key] = contact_cholesky(
                 self.compliance[u][np.ix_(above, above)])
         return factor
