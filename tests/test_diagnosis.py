@@ -519,10 +519,15 @@ def test_a_named_effect_leaves_no_more_static_residual_than_the_mesh_error(
     limit = pipeline._static_limit(result, None, None)
     assert limit == 1.288 and len(solves) == 1
     assert leaves_static_beyond(final, static_after_mm, limit) is beyond
-    monkeypatch.setattr(pipeline, "element_bracket", lambda solutions, cache: None)
+    assert pipeline._static_limit(result, None, None) == 1.288 and len(solves) == 1
+    failed = []
+    monkeypatch.setattr(pipeline, "element_bracket",
+                        lambda solutions, cache: failed.append(1))  # None: no equilibrium
     unsolved = Diagnosis(sample_robot, None)
     unsolved.selected = [final]
-    assert pipeline._static_limit(unsolved, None, None) == UNEXPLAINED_MM
+    for _ in range(2):  # a failed bracket solve is not tried again
+        assert pipeline._static_limit(unsolved, None, None) == UNEXPLAINED_MM
+    assert len(failed) == 1
 
 
 def test_a_second_effect_must_not_undo_the_first():

@@ -142,6 +142,7 @@ class Diagnosis:
     # effects not named (_within_mesh), and that bound (solves.element_bracket)
     within_mesh: list[str] = field(default_factory=list)
     mesh_bracket: ElementBracket | None = None
+    mesh_bracket_sought: bool = False  # _mesh_bracket asked once (None then: no bracket)
     # a camera effect's held-out RMS (mm) with the mesh's allowance, when the first selected
     # effect was a camera's (_camera_with_the_mesh): {camera label: mm}
     camera_with_mesh_mm: dict[str, float] = field(default_factory=dict)
@@ -1001,9 +1002,10 @@ def _static_limit(result: Diagnosis, solutions: StateSolutions, cache: SolveCach
 def _mesh_bracket(result: Diagnosis, solutions: StateSolutions, cache: SolveCache
                   ) -> ElementBracket | None:
     """result.mesh_bracket (solves.element_bracket), solved the first time it is asked for
-    (again only if that solve failed)."""
-    if result.mesh_bracket is None:
+    only: a failed solve (no equilibrium of the other element) is not tried again."""
+    if not result.mesh_bracket_sought:
         result.mesh_bracket = element_bracket(solutions, cache)
+        result.mesh_bracket_sought = True
     return result.mesh_bracket
 
 
