@@ -47,6 +47,7 @@ from cvxopt import cholmod, spmatrix
 from cvxopt import matrix as dense
 
 from softforce_cli.errors import SolverError
+from softforce_cli.fem.cholmod_blocks import blocked_solver
 
 SINGULAR = ("the stiffness matrix is singular: is the robot clamped (a [[fixed]] box that "
             "catches nodes) and its mesh connected?")
@@ -212,6 +213,11 @@ class Factorization:
 
     @staticmethod
     def _solve_with(symbolic, rhs: np.ndarray) -> np.ndarray:
+        """(f, k): the factor's solve of rhs (f, k), its columns together where CHOLMOD's
+        own solve can be reached (fem.cholmod_blocks), else one by one through cvxopt."""
+        blocked = blocked_solver()
+        if blocked is not None:
+            return blocked(symbolic, rhs)
         solution = dense(rhs)
         cholmod.solve(symbolic, solution)
         return np.array(solution)
