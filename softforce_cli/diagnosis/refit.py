@@ -36,6 +36,7 @@ from softforce_cli.diagnosis.solves import SETTINGS, StateSolutions
 from softforce_cli.diagnosis.states import States
 from softforce_cli.errors import SolverError
 from softforce_cli.fem.cables import CableInputs
+from softforce_cli.fem.processes import map_on_cores
 from softforce_cli.fem.statics import Equilibrium, solve_equilibrium
 from softforce_cli.model.effect_physics import fe_model_with_effects
 from softforce_cli.model.effects import (
@@ -106,6 +107,16 @@ class NoEquilibriumError(SolverError):
                          f"{candidate.label} at {_listed(values)}")
 
 
+class _UnreachedError(Exception):
+    """A group's solve failed even by continuation (its index among the solved groups, the
+    last solve's message): a worker's report, which pickles, that the caller turns into a
+    NoEquilibriumError."""
+
+    def __init__(self, index: int, message: str) -> None:
+        super().__init__(index, message)
+        self.index, self.message = index, message
+
+
 def _listed(values: np.ndarray) -> str:
     return "(" + ", ".join(f"{v:.4g}" for v in np.asarray(values, dtype=float)) + ")"
 
@@ -164,26 +175,30 @@ class ExactModel:
         of_frame, firsts = self._groups(creep)
         plate = self._plate_motion(candidate, values)
         predicted = solutions.predicted_mm[self.states.of_frame[firsts]].copy()
-        solves = 0
-        shared = fe_model_with_effects(robot, physics) if physics and not creep else None
+        # without creep one model serves every group: made here, so that workers inherit it
+        shared = (None if creep else fe_model_with_effects(robot, physics) if physics
+                  else robot.nominal_fe_model)
         controls = tuple(spec.control for spec in robot.cable_specs)
-        done: dict[bytes, int] = {}  # groups of equal inputs share a solve (without creep)
+        solved: list[int] = []  # the groups solved, a first of each input without creep
+        twins: dict[int, int] = {}  # groups of equal inputs share a solve (without creep)
+        seen: dict[bytes, int] = {}
         for g, first in enumerate(firsts):
             s = int(self.states.of_frame[first])
             inputs = effective[first]
-            moved = not np.allclose(inputs, solutions.actuation[s])
-            if not physics and not moved:
+            if not physics and np.allclose(inputs, solutions.actuation[s]):
                 continue
-            twin = done.setdefault(inputs.tobytes(), g) if not creep else g
-            if twin != g:
-                predicted[g] = predicted[twin]
-                continue
+            twin = g if creep else seen.setdefault(inputs.tobytes(), g)
+            if twin == g:
+                solved.append(g)
+            else:
+                twins[g] = twin
+
+        def solve(index: int) -> tuple[np.ndarray, int]:
+            first = firsts[solved[index]]
+            s = int(self.states.of_frame[first])
+            inputs = effective[first]
             context = self.contexts[first]
-            model = shared
-            if creep:
-                model = fe_model_with_effects(robot, physics, context)
-            elif model is None:
-                model = robot.nominal_fe_model
+            model = fe_model_with_effects(robot, physics, context) if creep else shared
             start = solutions.first_order(s, _column_changes(
                 candidate, values, context.hold_s,
                 dict(zip(cables, inputs - solutions.actuation[s], strict=True))))
@@ -192,14 +207,25 @@ class ExactModel:
             try:
                 solution = solve_equilibrium(model, CableInputs(controls, inputs),
                                              start_mm=start, settings=DIRECT_SETTINGS)
-                solves += 1
+                return solution.positions_mm[:n], 1
             except SolverError:  # too far for Newton from the first-order start
                 try:
                     solution = self._continued(candidate, values, first)
                 except SolverError as error:
-                    raise NoEquilibriumError(candidate, values, inputs) from error
-                solves += CONTINUATION_STEPS
-            predicted[g] = solution.positions_mm[:n]
+                    raise _UnreachedError(index, str(error)) from error
+                return solution.positions_mm[:n], CONTINUATION_STEPS
+
+        try:
+            results = map_on_cores(solve, len(solved))
+        except _UnreachedError as unreached:
+            first = firsts[solved[unreached.index]]
+            raise NoEquilibriumError(candidate, values, effective[first]) from SolverError(
+                unreached.message)
+        for g, (positions, _) in zip(solved, results, strict=True):
+            predicted[g] = positions
+        for g, twin in twins.items():
+            predicted[g] = predicted[twin]
+        solves = sum(count for _, count in results)
         sensor = effects_of_kind(effects, "sensor")
         if sensor:
             shape = predicted.shape

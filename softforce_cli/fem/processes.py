@@ -1,0 +1,86 @@
+"""Independent FE solves on the machine's cores, in forked worker processes.
+
+A quadratic-element solve of the coarse Diamond (26k dofs) is about a second of one core's
+work, and Python's threads cannot share it: CHOLMOD's factorisation runs on one thread
+(cvxopt's OpenBLAS is built without threads) and holds the interpreter, as the assembly's
+numpy loops mostly do. A diagnosis' refit solves every state of a recording again with a
+candidate's effect, each state on its own: on this 2-core machine two worker processes
+solved six such states in 5.4 s against 7.7-8.4 s in one (1.4-1.6 times: the two share the
+memory bus; 2026-11-30, docs/diagnosis.md).
+
+Workers are forked when a map starts: they inherit the caller's models as they are, so that
+nothing large is pickled, only each task's index and its result. Each runs BLAS on one
+thread, writes to streams of its own and ignores Ctrl-C, which the caller handles: it waits
+for the running tasks (one solve each at most) and cancels the others. Where fork is not
+available (outside Linux), with one core, or within a worker, the tasks run in turn in the
+calling process.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import signal
+import sys
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from typing import TypeVar
+
+from softforce_cli.fem.threads import one_blas_thread
+
+Result = TypeVar("Result")
+# Workers at most: a P2 solve's factor and tangent take about 0.2 GB a worker on the coarse
+# Diamond, and the memory bus, not the cores, limits beyond a few.
+MAX_WORKERS = 8
+
+_task: Callable[[int], object] | None = None  # the running map's task, which workers inherit
+
+
+def worker_count(tasks: int) -> int:
+    """Worker processes a map of `tasks` tasks uses: one per core this process may run on,
+    at most MAX_WORKERS and the tasks; 1 (in turn, in this process) without fork or within
+    a worker."""
+    if _task is not None or "fork" not in multiprocessing.get_all_start_methods():
+        return 1
+    return max(1, min(tasks, len(os.sched_getaffinity(0)), MAX_WORKERS))
+
+
+def map_on_cores(task: Callable[[int], Result], count: int) -> list[Result]:
+    """[task(0), ..., task(count - 1)], run in forked worker processes (worker_count).
+
+    The results come in order, and so do the tasks' exceptions: the first task in order to
+    raise raises here, as it would in turn, and the tasks after it that have not started are
+    cancelled. A task's result and exception must pickle.
+    """
+    global _task
+    workers = worker_count(count)
+    if workers == 1:
+        return [task(i) for i in range(count)]
+    _task = task
+    try:
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"),
+                                 initializer=_start_worker) as pool:
+            futures = [pool.submit(_run, i) for i in range(count)]
+            try:
+                return [future.result() for future in futures]
+            except BaseException:
+                for future in futures:
+                    future.cancel()
+                raise
+    finally:
+        _task = None
+
+
+def _start_worker() -> None:
+    """Ctrl-C is the caller's to handle; and the worker writes (a warning, say) to streams
+    of its own on the same files: the caller's may have been locked by another of its
+    threads when it forked (a progress bar redrawing), and a lock copied locked is never
+    released."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    sys.stdout = open(sys.__stdout__.fileno(), "w", closefd=False)  # noqa: SIM115
+    sys.stderr = open(sys.__stderr__.fileno(), "w", closefd=False)  # noqa: SIM115
+
+
+def _run(index: int) -> object:
+    with one_blas_thread():
+        return _task(index)
