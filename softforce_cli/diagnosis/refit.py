@@ -163,7 +163,9 @@ class ExactModel:
     basis: Basis
 
     def predict(self, candidate: Candidate, values: np.ndarray) -> Prediction:
-        """The predicted mesh nodes with the candidate's effects, per group of frames."""
+        """The predicted mesh nodes with the candidate's effects, per group of frames; the
+        groups' solves, independent of each other, run on the machine's cores
+        (fem.processes)."""
         solutions = self.solutions
         robot = solutions.robot
         n = robot.mesh.node_count
@@ -181,13 +183,13 @@ class ExactModel:
         controls = tuple(spec.control for spec in robot.cable_specs)
         solved: list[int] = []  # the groups solved, a first of each input without creep
         twins: dict[int, int] = {}  # groups of equal inputs share a solve (without creep)
-        seen: dict[bytes, int] = {}
+        first_of_inputs: dict[bytes, int] = {}
         for g, first in enumerate(firsts):
             s = int(self.states.of_frame[first])
             inputs = effective[first]
             if not physics and np.allclose(inputs, solutions.actuation[s]):
                 continue
-            twin = g if creep else seen.setdefault(inputs.tobytes(), g)
+            twin = g if creep else first_of_inputs.setdefault(inputs.tobytes(), g)
             if twin == g:
                 solved.append(g)
             else:

@@ -250,8 +250,9 @@ def _continued(model: FEModel, controls: tuple[str, ...], target: np.ndarray,
         return solve_by_continuation(model, controls, target, solved, ATTEMPT)
     except SolverError:
         raise SolverError(f"training could not reach actuation {np.round(target, 3).tolist()} "
-                          "even in 8 steps; narrow the cables' [min, max] in the robot file"
-                          ) from None
+                          "even in 8 steps; train a smaller box (--box-fraction 0.5 halves "
+                          "each cable's range) or narrow the cables' [min, max] in the robot "
+                          "file") from None
 
 
 def save_training_set(path: Path, data: TrainingSet, key: str) -> None:
