@@ -282,11 +282,16 @@ def diagnose_observations(robot: Robot, observations: Observations, cache: Solve
             _screen_hypotheses(result, judge)
             _screen_markers(result, solutions, judge.exact.basis, judge.segments,
                             judge.frames)
+            # a stop ends the refit under way at its current values: no answer to judge
             result.stage = "refit"
             _first_effects(result, judge)
+            judge.check_stop()
             _select(result, judge)
+            judge.check_stop()
             _camera_with_the_mesh(result, judge, solutions, cache)
+            judge.check_stop()
             _within_mesh(result, solutions, cache)
+            judge.check_stop()
             result.stage = "verdict"
             _verdict(result, judge, solutions, cache)
             result.stage = "done"
