@@ -89,3 +89,18 @@ def test_a_worker_writes_to_streams_of_its_own(monkeypatch):
         return i
 
     assert map_on_cores(task, 2) == [0, 1]
+
+
+def test_workers_are_as_many_as_the_memory_available_holds(monkeypatch):
+    """A worker's solves allocate about what the caller's did: with room for one copy of
+    this process' resident memory the tasks run in turn here, with room for two on two
+    workers; where the memory cannot be read, the cores alone count."""
+    if CORES < 2:
+        pytest.skip("one core: the tasks run in this process")
+    sizes = {"MemAvailable:": 1_500_000, "VmRSS:": 1_000_000}
+    monkeypatch.setattr(processes, "_kilobytes", lambda path, field: sizes[field])
+    assert worker_count(8) == 1
+    sizes["MemAvailable:"] = 2_100_000
+    assert worker_count(8) == 2
+    sizes["MemAvailable:"] = None  # unreadable: no limit
+    assert worker_count(8) == min(CORES, processes.MAX_WORKERS)

@@ -8,8 +8,9 @@ candidate's effect, each state on its own: on this 2-core machine two worker pro
 solved six such states in 5.4 s against 7.7-8.4 s in one (1.4-1.6 times: the two share the
 memory bus; 2026-11-30, docs/diagnosis.md).
 
-Workers are forked when a map starts: they inherit the caller's models as they are, so that
-nothing large is pickled, only each task's index and its result. Each runs BLAS on one
+Workers are forked when a map starts, one per core and no more than the available memory
+holds at the caller's resident size each: they inherit the caller's models as they are, so
+that nothing large is pickled, only each task's index and its result. Each runs BLAS on one
 thread, writes to streams of its own and ignores Ctrl-C, which the caller handles: it waits
 for the running tasks (one solve each at most) and cancels the others. Where fork is not
 available (outside Linux), with one core, or within a worker, the tasks run in turn in the
@@ -38,11 +39,28 @@ _task: Callable[[int], object] | None = None  # the running map's task, which wo
 
 def worker_count(tasks: int) -> int:
     """Worker processes a map of `tasks` tasks uses: one per core this process may run on,
-    at most MAX_WORKERS and the tasks; 1 (in turn, in this process) without fork or within
-    a worker."""
+    at most MAX_WORKERS, the tasks, and as many as the memory available holds at this
+    process' resident size each (a worker's solves allocate about what the caller's did: a
+    fine mesh's factors take gigabytes); 1 (in turn, in this process) without fork or
+    within a worker."""
     if _task is not None or "fork" not in multiprocessing.get_all_start_methods():
         return 1
-    return max(1, min(tasks, len(os.sched_getaffinity(0)), MAX_WORKERS))
+    available = _kilobytes("/proc/meminfo", "MemAvailable:")
+    resident = _kilobytes("/proc/self/status", "VmRSS:")
+    fits = MAX_WORKERS if available is None or not resident else available // resident
+    return max(1, min(tasks, len(os.sched_getaffinity(0)), MAX_WORKERS, fits))
+
+
+def _kilobytes(path: str, field: str) -> int | None:
+    """The number of a "field: N kB" line of a /proc file; None where unreadable."""
+    try:
+        with open(path) as lines:
+            for line in lines:
+                if line.startswith(field):
+                    return int(line.split()[1])
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
 
 
 def map_on_cores(task: Callable[[int], Result], count: int) -> list[Result]:
