@@ -114,16 +114,11 @@ class Inputs:
     support: SupportBasis | None = None
 
     @cached_property
-    def state_node(self) -> np.ndarray:
-        """(E,) each entry's row in the per-state node arrays (S, n, ...) flattened to
-        (S n, ...): np.take of whole rows is several times faster than a two-index gather."""
-        return self.state * self.library.shape[1] + self.field.node
-
-    @cached_property
     def own_cable_columns(self) -> np.ndarray:
         """(E, a) mm per unit input: each entry's normal shift per unit of each cable's input
         at its own state (the cable columns an actuation effect mostly reads)."""
-        return np.einsum("eai,ei->ea", rows_at(self.cable_columns, self.state_node),
+        return np.einsum("eai,ei->ea",
+                         at_state_nodes(self.cable_columns, self.state, self.field.node),
                          self.normals)
 
     def column(self, name: str) -> np.ndarray:
@@ -181,7 +176,8 @@ class Hypothesis:
             return _softening(1.0 - v["relaxation"] * relaxed) * inputs.column("stiffness")
         if self.name == "support_contact":
             motion = inputs.support.motion_mm(v["table_z_mm"])
-            return np.einsum("ei,ei->e", rows_at(motion, inputs.state_node), inputs.normals)
+            return np.einsum("ei,ei->e", at_state_nodes(motion, inputs.state, inputs.field.node),
+                             inputs.normals)
         if self.kind == "actuation":
             return interpolated_shift(effective_actuation(
                 (self.effect(values),), inputs.contexts, inputs.cables), inputs)
@@ -210,20 +206,23 @@ def interpolated_shift(effective: np.ndarray, inputs: Inputs) -> np.ndarray:
     shift = np.einsum("ea,ea->e", delta[frame], inputs.own_cable_columns)
     other = np.flatnonzero(nearest[frame] != inputs.state)
     if len(other):
-        rows = nearest[frame[other]] * inputs.library.shape[1] + inputs.field.node[other]
-        moved = rows_at(inputs.library, rows) + np.einsum(
-            "ea,eai->ei", delta[frame[other]], rows_at(inputs.cable_columns, rows))
+        states, nodes = nearest[frame[other]], inputs.field.node[other]
+        moved = at_state_nodes(inputs.library, states, nodes) + np.einsum(
+            "ea,eai->ei", delta[frame[other]],
+            at_state_nodes(inputs.cable_columns, states, nodes))
         shift[other] = np.einsum("ei,ei->e", moved - inputs.positions[other],
                                  inputs.normals[other])
     return shift
 
 
-def rows_at(per_state_node: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """(E, ...) the entries of a per-state, per-node array (S, n, ...) at the flat rows
-    (E,) s n + node."""
+def at_state_nodes(per_state_node: np.ndarray, states: np.ndarray, nodes: np.ndarray
+                   ) -> np.ndarray:
+    """(E, ...) the entries of a per-state, per-node array (S, n, ...) at (states, nodes)
+    (E,) each: np.take of whole rows of the array flattened to (S n, ...), several times
+    faster than a two-index gather (0.33 against 4.3 ms for 30,000 rows)."""
     s, n = per_state_node.shape[:2]
     flat = per_state_node.reshape(s * n, -1)
-    return flat.take(rows, axis=0).reshape(len(rows), *per_state_node.shape[2:])
+    return flat.take(states * n + nodes, axis=0).reshape(len(states), *per_state_node.shape[2:])
 
 
 def _clipped(name: str, values: dict[str, float]) -> dict[str, float]:
