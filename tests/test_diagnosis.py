@@ -3,6 +3,7 @@ FE re-solves (the sensitivities), exact state solutions (the cable-effect interp
 a problem with a known answer (held-out selection)."""
 
 import os
+import tomllib
 
 import numpy as np
 import pytest
@@ -28,7 +29,7 @@ from softforce_cli.diagnosis.pipeline import (
     static_mm,
 )
 from softforce_cli.diagnosis.refit import ExactModel, Refit
-from softforce_cli.diagnosis.report import group_reason
+from softforce_cli.diagnosis.report import effect_entry, fitted_robot_toml, group_reason
 from softforce_cli.diagnosis.residuals import Field, point_residuals
 from softforce_cli.diagnosis.selection import (
     UNEXPLAINED_MM,
@@ -800,6 +801,19 @@ def test_a_heavier_or_softer_body_within_the_mesh_error_is_not_named(monkeypatch
     assert named(softer(0.95), systematic_mm=2.40)
 
 
+class _StubJudge:
+    """A pipeline._Judge whose screening keeps a candidate's start; tests give its final."""
+
+    def check_stop(self) -> None:
+        pass
+
+    def report(self, *progress) -> None:
+        pass
+
+    def screen(self, candidate, relative, start=None):
+        return Screened(candidate, start, None, relative, None, None)
+
+
 @pytest.mark.parametrize(("depth_pair_mm", "switched"), [(0.45, True), (0.4805, False),
                                                        (0.52, False)])
 def test_the_cameras_are_compared_again_with_the_mesh_allowance(monkeypatch, sample_robot,
@@ -829,17 +843,8 @@ def test_the_cameras_are_compared_again_with_the_mesh_allowance(monkeypatch, sam
     alone_mm = {"extrinsic_offset": 0.55, "depth_bias": 0.72}
     allowances = []
 
-    class Judge:
+    class Judge(_StubJudge):
         table, floor = None, 0.38
-
-        def check_stop(self) -> None:
-            pass
-
-        def report(self, *progress) -> None:
-            pass
-
-        def screen(self, candidate, relative, start=None):
-            return Screened(candidate, start, None, relative, None, None)
 
         def final(self, screened):
             hypotheses = screened.candidate.hypotheses
@@ -865,6 +870,76 @@ def test_the_cameras_are_compared_again_with_the_mesh_allowance(monkeypatch, sam
     # the allowance that decided the camera is its second effect, none other being found
     assert [f.candidate.label for f in result.selected] == (
         ["depth_bias", "depth_bias + stiffness_scale"] if switched else ["extrinsic_offset"])
+
+
+@pytest.mark.parametrize(("name", "relative", "pair_mm", "reported"), [
+    ("compliant_base", False, 0.316, True),  # the base_5 case against the 6.5 mm truth
+    ("material_nonlinearity", False, 0.3292, True),  # within 1% of the effect alone
+    ("compliant_base", False, 0.35, False),  # the pair's refit stopped short
+    ("support_contact", False, 0.316, None),  # a plate: never refitted with it
+    ("gravity", False, 0.316, None),  # a load scale: the allowance is one
+    ("material_nonlinearity", True, 0.316, None),  # relative: the mesh's static error
+])
+def test_a_static_effect_is_reported_with_the_mesh_allowance(monkeypatch, sample_robot, name,
+                                                             relative, pair_mm, reported):
+    """(pipeline._with_the_mesh) A selected compliant base or law blend on absolute residuals
+    is refitted with a stiffness scale bounded to the mesh's bracket [1 / 1.14, 1], and that
+    fit is kept for its values when accepted and leaving no more held-out error than the
+    effect alone (0.327 mm here) within 1%; a plate, a load scale and a relative fit are not
+    refitted. The report then gives the pair's values, its allowance and the fit alone, and
+    robot.fitted.toml carries the allowance as a stiffness scale, loadable."""
+    monkeypatch.setattr(pipeline, "element_bracket",
+                        lambda solutions, cache: ElementBracket(1.14, 1.29))
+    spread = np.linspace(-0.01, 0.01, 8)
+    refitted = []
+
+    def held(rms_mm: float) -> HeldOut:
+        return HeldOut(1.64, rms_mm, np.full(8, 1.64**2), rms_mm**2 + spread)
+
+    class Judge(_StubJudge):
+        def final(self, screened):
+            refitted.append(screened.candidate)
+            values = np.array([0.18, 0.98])
+            fitted = Refit(screened.candidate, values, None, None, None, 0, values)
+            return Final(screened, fitted, held(pair_mm), np.array([[0.16, 0.2], [0.97, 0.99]]),
+                         True, None)
+
+    hypothesis = Hypothesis(name, None, ("compliance_mm_per_n" if name == "compliant_base"
+                                         else "blend" if name == "material_nonlinearity"
+                                         else "scale",),
+                            np.ones(1), np.zeros(1), np.full(1, 3.0))
+    candidate = Candidate((hypothesis,))
+    alone = Final(Screened(candidate, np.full(1, 0.246), held(0.327), relative,
+                           np.array([[0.24, 0.25]]), None),
+                  Refit(candidate, np.full(1, 0.246), None, None, None, 0, np.full(1, 0.246)),
+                  held(0.327), np.array([[0.24, 0.25]]), True, None)
+    result = Diagnosis(sample_robot, None)
+    result.selected = result.finals = [alone]
+    pipeline._with_the_mesh(result, Judge(), None, None)
+    if reported is None:
+        assert not refitted and not result.with_mesh
+        return
+    (pair,) = refitted
+    assert [h.name for h in pair.hypotheses] == [name, "stiffness_scale"]
+    np.testing.assert_allclose([pair.hypotheses[1].lower[0], pair.hypotheses[1].upper[0]],
+                               [1 / 1.14, 1])
+    assert (alone in result.with_mesh) is reported
+    if not reported or name != "compliant_base":
+        return
+    entry = effect_entry(alone, 0.29, True, result.with_mesh[alone])
+    assert entry["parameters"]["stiffness_n_per_mm"]["value"] == pytest.approx(1 / 0.18,
+                                                                               rel=1e-5)
+    assert entry["heldout_rms_after_mm"] == pytest.approx(0.316)
+    allowance = entry["evidence"]["mesh_allowance"]
+    assert allowance["stiffness_scale"]["value"] == pytest.approx(0.98)
+    assert allowance["alone"]["parameters"]["stiffness_n_per_mm"]["value"] == pytest.approx(
+        1 / 0.246, rel=1e-5)
+    assert allowance["alone"]["heldout_rms_after_mm"] == pytest.approx(0.327)
+    text = fitted_robot_toml(SAMPLE_ROBOT, result, SAMPLE_ROBOT.parent)
+    effects = {e["name"]: e for e in tomllib.loads(text)["effect"]}
+    assert effects["compliant_base"]["stiffness_n_per_mm"] == pytest.approx(1 / 0.18)
+    assert effects["stiffness_scale"]["scale"] == pytest.approx(0.98)
+    assert "this mesh's own stiffness error" in text
 
 
 def test_a_group_says_why_its_effects_are_one_signature():

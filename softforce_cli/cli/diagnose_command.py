@@ -71,7 +71,8 @@ def _summary(diagnosis) -> None:
                                        if f not in diagnosis.selected]
     rows += [s for s in diagnosis.screened[:6] if s.key not in {f.screened.key for f in rows}]
     for item in rows[:8]:
-        entry = effect_entry(item, diagnosis.floor_for(item), item in diagnosis.selected)
+        entry = effect_entry(item, diagnosis.floor_for(item), item in diagnosis.selected,
+                             diagnosis.with_mesh.get(item))
         shown = [f"{k}={v['value']:.3g}" for k, v in entry["parameters"].items()]
         values = ", ".join(shown[:2]) + (f" (+{len(shown) - 2})" if len(shown) > 2 else "")
         accepted = entry["evidence"]["accepted"]

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from softforce_cli import __version__
+from softforce_cli.diagnosis.fitting import Candidate
 from softforce_cli.diagnosis.pipeline import Diagnosis, Final, Screened
 from softforce_cli.diagnosis.refit import NoEquilibriumError
 from softforce_cli.diagnosis.selection import excess_share, explained_mm
@@ -66,24 +67,35 @@ def _parameters(effect: Effect, free: tuple[str, ...], values: np.ndarray,
     return out
 
 
-def effect_entry(item: Final | Screened, floor_mm: float, selected: bool) -> dict[str, Any]:
-    """One ranked effect: the last of its hypotheses, the one it adds to the effects before
-    it (a second effect is refitted with the first: its entry holds both's parameters)."""
-    screened = item.screened if isinstance(item, Final) else item
-    candidate = screened.candidate
-    values = item.values
-    ci = item.ci95
-    held = item.heldout
+def _candidate_parameters(candidate: Candidate, values: np.ndarray, ci95: np.ndarray
+                          ) -> dict[str, dict[str, Any]]:
+    """{name: {value, ci95, unit}} of every hypothesis of a candidate (prefixed by its label
+    when there are several)."""
     effects = candidate.effects(values)
     parameters: dict[str, Any] = {}
     for hypothesis, effect, part, part_ci in zip(
             candidate.hypotheses, effects, candidate.split(values),
-            np.split(ci, np.cumsum(candidate.sizes)[:-1]), strict=True):
+            np.split(ci95, np.cumsum(candidate.sizes)[:-1]), strict=True):
         prefix = "" if len(effects) == 1 else f"{hypothesis.label}."
         parameters.update({prefix + k: v for k, v in _parameters(
             effect, hypothesis.free, part, part_ci).items()})
+    return parameters
+
+
+def effect_entry(item: Final | Screened, floor_mm: float, selected: bool,
+                 with_mesh: Final | None = None) -> dict[str, Any]:
+    """One ranked effect: the last of its hypotheses, the one it adds to the effects before
+    it (a second effect is refitted with the first: its entry holds both's parameters).
+    With `with_mesh` (pipeline._with_the_mesh), the values, intervals and held-out error are
+    that fit's, and its allowance and the fit alone are in evidence.mesh_allowance."""
+    screened = item.screened if isinstance(item, Final) else item
+    candidate = screened.candidate
+    reported = item if with_mesh is None else with_mesh
+    own = sum(candidate.sizes)
+    parameters = _candidate_parameters(candidate, reported.values[:own], reported.ci95[:own])
+    held = reported.heldout
     added = candidate.hypotheses[-1]
-    return {
+    entry = {
         "name": added.name,
         "target": added.target,
         "label": candidate.label,
@@ -114,6 +126,15 @@ def effect_entry(item: Final | Screened, floor_mm: float, selected: bool) -> dic
                 if isinstance(item, Final) and item.relative_heldout is not None else None),
         },
     }
+    if with_mesh is not None:
+        (allowance,) = _parameters(with_mesh.candidate.effects(with_mesh.values)[-1],
+                                   with_mesh.candidate.hypotheses[-1].free,
+                                   with_mesh.values[own:], with_mesh.ci95[own:]).values()
+        entry["evidence"]["mesh_allowance"] = {
+            "stiffness_scale": allowance,
+            "alone": {"parameters": _candidate_parameters(candidate, item.values, item.ci95),
+                      "heldout_rms_after_mm": _finite(item.heldout.rms_after_mm)}}
+    return entry
 
 
 def diagnosis_document(diagnosis: Diagnosis, inputs: dict[str, Any]) -> dict[str, Any]:
@@ -121,7 +142,8 @@ def diagnosis_document(diagnosis: Diagnosis, inputs: dict[str, Any]) -> dict[str
     floor = diagnosis.floor_for
     chosen = {id(f) for f in diagnosis.selected}
     refitted = {(f.screened.key) for f in diagnosis.finals}
-    ranked: list[dict[str, Any]] = [effect_entry(f, floor(f), True) for f in diagnosis.selected]
+    ranked: list[dict[str, Any]] = [effect_entry(f, floor(f), True, diagnosis.with_mesh.get(f))
+                                    for f in diagnosis.selected]
     ranked += [effect_entry(f, floor(f), False) for f in diagnosis.finals
                if id(f) not in chosen]
     seen = set(refitted)
@@ -158,15 +180,24 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
     if diagnosis.selected:
         for final in diagnosis.selected:
             floor = diagnosis.floor_for(final)
-            values = ", ".join(f"{k} = {v['value']:.4g} [{v['ci95'][0]:.4g}, {v['ci95'][1]:.4g}]"
-                               f"{' ' + v['unit'] if v['unit'] else ''}"
-                               for k, v in effect_entry(final, floor, True)["parameters"].items())
+            with_mesh = diagnosis.with_mesh.get(final)
+            entry = effect_entry(final, floor, True, with_mesh)
             markers = final.screened.channel == "markers"
-            lines.append(f"{final.candidate.label}: {values}; held-out residual "
-                         f"{'of the markers ' if markers else ''}"
-                         f"{final.heldout.rms_before_mm:.2f} -> {final.heldout.rms_after_mm:.2f}"
-                         f" mm ({MODES[final.screened.relative]}), noise floor "
-                         f"{floor:.2f} mm")
+            lines.append(f"{final.candidate.label}: {_values_text(entry['parameters'])}; "
+                         f"held-out residual {'of the markers ' if markers else ''}"
+                         f"{entry['heldout_rms_before_mm']:.2f} -> "
+                         f"{entry['heldout_rms_after_mm']:.2f} mm "
+                         f"({MODES[final.screened.relative]}), noise floor {floor:.2f} mm")
+            if with_mesh is not None:
+                allowance = entry["evidence"]["mesh_allowance"]
+                alone = allowance["alone"]
+                lines.append(
+                    f"{final.candidate.label}: fitted with this mesh's own stiffness error "
+                    f"alongside, which it takes up when fitted alone (a body "
+                    f"{allowance['stiffness_scale']['value']:.3g} as stiff, between 1 and the "
+                    f"{1 / diagnosis.mesh_bracket.load_scale:.3g} of the other quadratic "
+                    f"element on the mesh); alone: {_values_text(alone['parameters'])}, "
+                    f"held-out {alone['heldout_rms_after_mm']:.2f} mm")
             if markers:
                 lines.append("seen by the markers only: the point clouds show no structured "
                              "mismatch (a camera turned about its axis or moved sideways "
@@ -221,6 +252,12 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
     return lines
 
 
+def _values_text(parameters: dict[str, dict[str, Any]]) -> str:
+    """"name = value [low, high] unit, ..." of an entry's parameters."""
+    return ", ".join(f"{k} = {v['value']:.4g} [{v['ci95'][0]:.4g}, {v['ci95'][1]:.4g}]"
+                     f"{' ' + v['unit'] if v['unit'] else ''}" for k, v in parameters.items())
+
+
 def fitted_robot_toml(robot_file: Path, diagnosis: Diagnosis, output_dir: Path) -> str:
     """The robot file's text with paths made relative to output_dir and the selected effects
     appended as `[[effect]]` tables (none for `none` / `unexplained`)."""
@@ -234,14 +271,21 @@ def fitted_robot_toml(robot_file: Path, diagnosis: Diagnosis, output_dir: Path) 
     # [mesh] path and reduced are relative to the robot file: rebase them on the output
     text = re.sub(r'(?m)^(\s*(?:path|reduced)\s*=\s*)"([^"]+)"', relocate, text)
     fitted = diagnosis.fitted
-    effects = () if fitted is None else fitted.candidate.effects(fitted.values)
-    if not effects:
+    if fitted is None:
         return text
+    with_mesh = diagnosis.with_mesh.get(fitted)
+    reported = fitted if with_mesh is None else with_mesh
+    tables = [effect_toml(e) for e in reported.candidate.effects(reported.values)]
+    if with_mesh is not None:
+        # the mesh's own error, fitted with the effects: it belongs to this mesh
+        tables[-1] = ("# this mesh's own stiffness error, fitted with the effects above "
+                      "(diagnosis.json: evidence.mesh_allowance); leave it out on a finer "
+                      "mesh\n" + tables[-1])
     # the file's own [[effect]] tables were left out of the diagnosis: the fitted ones replace
     # them (an effect table holds single-line keys up to the next table header)
     text = re.sub(r"(?ms)^\[\[effect\]\]\n.*?(?=^\[|\Z)", "", text)
     header = f"\n# fitted by softforce diagnose {__version__} (diagnosis.json)\n"
-    return text.rstrip("\n") + "\n" + header + "\n".join(effect_toml(e) for e in effects)
+    return text.rstrip("\n") + "\n" + header + "\n".join(tables)
 
 
 def unreached_line(final: Final) -> str:
