@@ -32,6 +32,12 @@ def test_tasks_run_in_worker_processes_and_come_back_in_order():
         assert parent not in workers and len(workers) == worker_count(7) >= 2
 
 
+def test_progress_counts_the_tasks_as_they_end():
+    seen: list[int] = []
+    assert map_on_cores(lambda i: 2 * i, 5, seen.append) == [0, 2, 4, 6, 8]
+    assert seen == [1, 2, 3, 4, 5]
+
+
 def test_the_first_failure_in_order_is_raised_whichever_ends_first():
     """Task 3 fails at once, task 1 after a while: in turn, task 1's failure comes first."""
 

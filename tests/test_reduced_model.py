@@ -21,6 +21,7 @@ from scipy.optimize import nnls
 
 from softforce_cli.calibration.linear_model import linear_model
 from softforce_cli.errors import ModelError
+from softforce_cli.fem import processes
 from softforce_cli.fem.attachment import Attachment
 from softforce_cli.fem.element import deformation_gradients
 from softforce_cli.fem.materials import Material
@@ -29,7 +30,12 @@ from softforce_cli.fem.reduction.ecsw import energy_weight, sparse_nnls
 from softforce_cli.fem.reduction.pod import pod_basis, projection_errors
 from softforce_cli.fem.reduction.reduced_model import ReducedModel, ReducedModelWarning
 from softforce_cli.fem.reduction.rom_file import load_reduction, reduced_model, save_reduction
-from softforce_cli.fem.reduction.snapshots import load_training_set
+from softforce_cli.fem.reduction.snapshots import (
+    TrainingSet,
+    actuation_design,
+    collect,
+    load_training_set,
+)
 from softforce_cli.fem.reduction.starts import grid_levels, input_sensitivities, serpentine_grid
 from softforce_cli.fem.reduction.train import (
     CLAMP_CLEARANCE_MM,
@@ -338,6 +344,35 @@ def test_training_presses_away_from_the_clamp(beam):
     beyond = robot.mesh.surface_nodes[rest[robot.mesh.surface_nodes, 0] > 20.0]
     assert set(beyond) <= set(sites.nodes)
     np.testing.assert_allclose(np.linalg.norm(sites.normals, axis=1), 1.0, atol=1e-12)
+
+
+def test_training_snapshots_on_the_cores_are_those_in_turn(beam, monkeypatch):
+    """(snapshots.collect) Each equilibrium's responses, loaded states and contact equilibria
+    computed in worker processes are those computed in turn in this process, in the same
+    order, with the same random loads; progress reaches its total."""
+    robot, _, _ = beam
+    specs = robot.cable_specs
+    low = np.array([c.min for c in specs])
+    high = low + SETTINGS.box_fraction * (np.array([c.max for c in specs]) - low)
+    actuations = actuation_design(low, high, SETTINGS.extra_actuations)
+    sites = contact_sites(robot, SETTINGS.contact_states)
+
+    def training_set() -> tuple[TrainingSet, list[tuple[int, int]]]:
+        steps: list[tuple[int, int]] = []
+        data = collect(robot.full_fe_model, tuple(c.control for c in specs), actuations,
+                       robot.feature_nodes, robot.feature_normals, MAX_FORCE_N,
+                       SETTINGS.response_states, lambda done, total: steps.append((done, total)),
+                       sites)
+        return data, steps
+
+    on_cores, steps = training_set()
+    assert steps[-1] == (2 * len(actuations), 2 * len(actuations))
+    monkeypatch.setattr(processes, "worker_count", lambda tasks: 1)
+    in_turn, _ = training_set()
+    assert len(in_turn.contact_mm) > len(actuations)
+    for field in dataclasses.fields(TrainingSet):
+        np.testing.assert_allclose(getattr(on_cores, field.name), getattr(in_turn, field.name),
+                                   rtol=1e-9, atol=1e-12, err_msg=field.name)
 
 
 def test_cli_reduce_resumes_from_snapshots_and_writes_a_usable_file(beam, tmp_path):

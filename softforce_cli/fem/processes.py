@@ -6,7 +6,8 @@ work, and Python's threads cannot share it: CHOLMOD's factorisation runs on one 
 numpy loops mostly do. A diagnosis' refit solves every state of a recording again with a
 candidate's effect, each state on its own: on this 2-core machine two worker processes
 solved six such states in 5.4 s against 7.7-8.4 s in one (1.4-1.6 times: the two share the
-memory bus; 2026-11-30, docs/diagnosis.md).
+memory bus; 2026-11-30, docs/diagnosis.md). A reduced model's training does the same with
+each static equilibrium's responses and contact equilibria (fem.reduction.snapshots).
 
 Workers are forked when a map starts, one per core and no more than the available memory
 holds at the caller's resident size each: they inherit the caller's models as they are, so
@@ -24,7 +25,7 @@ import os
 import signal
 import sys
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import TypeVar
 
 from softforce_cli.fem.threads import one_blas_thread
@@ -63,8 +64,10 @@ def _kilobytes(path: str, field: str) -> int | None:
     return None
 
 
-def map_on_cores(task: Callable[[int], Result], count: int) -> list[Result]:
-    """[task(0), ..., task(count - 1)], run in forked worker processes (worker_count).
+def map_on_cores(task: Callable[[int], Result], count: int,
+                 progress: Callable[[int], None] | None = None) -> list[Result]:
+    """[task(0), ..., task(count - 1)], run in forked worker processes (worker_count);
+    progress(done) after each task ends, in this process.
 
     The results come in order, and so do the tasks' exceptions: the first task in order to
     raise raises here, as it would in turn, and the tasks after it that have not started are
@@ -73,13 +76,23 @@ def map_on_cores(task: Callable[[int], Result], count: int) -> list[Result]:
     global _task
     workers = worker_count(count)
     if workers == 1:
-        return [task(i) for i in range(count)]
+        results = []
+        for i in range(count):
+            results.append(task(i))
+            if progress is not None:
+                progress(i + 1)
+        return results
     _task = task
     try:
         with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"),
                                  initializer=_start_worker) as pool:
             futures = [pool.submit(_run, i) for i in range(count)]
             try:
+                for done, future in enumerate(as_completed(futures), 1):
+                    if future.exception() is not None:
+                        break  # raised below, after the failures before it in order
+                    if progress is not None:
+                        progress(done)
                 return [future.result() for future in futures]
             except BaseException:
                 for future in futures:

@@ -31,6 +31,7 @@ from softforce_cli.fem.cables import CableInputs
 from softforce_cli.fem.compliance import linearize
 from softforce_cli.fem.coordinates import Factor
 from softforce_cli.fem.model import FEModel
+from softforce_cli.fem.processes import map_on_cores
 from softforce_cli.fem.statics import (
     Equilibrium,
     PointLoads,
@@ -150,84 +151,136 @@ class ContactSites:
 CONTACT_LOW, CONTACT_HIGH = 0.1, 0.5
 
 
+@dataclass(frozen=True)
+class _Press:
+    """Forces pressing at k attachment points, a loaded state's or a contact's: along unit
+    directions (k, 3), of magnitudes (k,) N."""
+
+    points: Attachment
+    directions: np.ndarray
+    magnitudes_n: np.ndarray
+
+    @property
+    def loads(self) -> PointLoads:
+        return PointLoads(self.points, self.directions * self.magnitudes_n[:, None])
+
+
+@dataclass(frozen=True)
+class _StateSnapshots:
+    """What one static equilibrium gives besides itself: its responses (3n, R0 + a) or None,
+    its loaded states [(n, 3) mm], and its contact equilibria [(positions (n, 3) mm,
+    tensions (a,) N, responses (3n, p + a + 2))]: arrays only, which a worker process sends
+    back cheaply (an Equilibrium holds its model)."""
+
+    responses: np.ndarray | None
+    loaded_mm: list[np.ndarray]
+    contacts: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+
 def collect(model: FEModel, controls: tuple[str, ...], actuations: np.ndarray,
             feature_nodes: np.ndarray, feature_normals: np.ndarray,
             max_force_n: float = MAX_FORCE_N, response_states: int = 4,
             progress: Callable[[int, int], None] | None = None,
             sites: ContactSites | None = None) -> TrainingSet:
     """Solve, linearise and load the full model at every training actuation (S, a); with
-    `sites`, also its contact equilibria and their responses (module docstring)."""
+    `sites`, also its contact equilibria and their responses (module docstring).
+
+    The equilibria are solved in turn (each by continuation from the nearest solved); what
+    each gives besides (its linearisation, responses, loaded states and contact equilibria)
+    on the machine's cores (fem.processes), the first in this process, whose factorisation's
+    symbolic analysis the others share. The random loads are drawn beforehand, in a fixed
+    order: the same training set either way.
+    """
     rng = np.random.default_rng(SEED)
     states = response_state_indices(actuations, response_states)
     features = Attachment.at_nodes(feature_nodes)
     feature_rows = features.cartesian_rows(model.node_count)
     total = 2 * len(actuations)
-    done = 0
-    positions, tensions, responses, loaded = [], [], [], []
-    contacts: list[np.ndarray] = []
-    contact_tensions: list[np.ndarray] = []
-    contact_responses: list[np.ndarray] = []
-    factor = None
+
+    def report(done: int) -> None:
+        if progress is not None:
+            progress(done, total)
+
+    equilibria: list[Equilibrium] = []
     solved: list[tuple[np.ndarray, np.ndarray]] = []
-    for index, values in enumerate(actuations):
-        equilibrium = _continued(model, controls, values, solved)
-        solved.append((values, equilibrium.positions_mm))
-        done += 1
-        if progress is not None:
-            progress(done, total)
+    for values in actuations:
+        equilibria.append(_continued(model, controls, values, solved))
+        solved.append((values, equilibria[-1].positions_mm))
+        report(len(equilibria))
+    presses = [_draw_presses(rng, features, feature_normals, sites, max_force_n)
+               for _ in actuations]
+
+    def at_state(index: int, factor: Factor | None) -> tuple[_StateSnapshots, Factor]:
+        equilibrium = equilibria[index]
         x = equilibrium.positions_mm
-        positions.append(x)
-        tensions.append(equilibrium.cable_tensions_n)
         lin = linearize(model, x, equilibrium.cable_tensions_n, factorization=factor)
-        factor = lin.factorization
-        if index in states:
-            rows = sp_vstack_dense(feature_rows, model.cable_jacobian(x))
-            responses.append(lin.responses(rows))
-        # one contact, then two, pressing inwards at random features
-        for count in LOADED_CONTACTS:
-            picks = rng.choice(len(feature_nodes), size=count, replace=False)
-            magnitudes = rng.uniform(0.3, 1.0, count) * max_force_n / count
-            rows = features.subset(picks).directional_rows(-feature_normals[picks],
-                                                           model.node_count)
-            moved = lin.responses(rows) @ magnitudes
-            loaded.append(x + moved.reshape(-1, 3))
-        if sites is not None:
-            for _ in range(sites.per_state):
-                state = _contact_state(model, CableInputs(controls, values), equilibrium,
-                                       features, feature_normals, sites, max_force_n, rng,
-                                       factor)
-                if state is not None:
-                    contacts.append(state[0].positions_mm)
-                    contact_tensions.append(state[0].cable_tensions_n)
-                    contact_responses.append(state[1])
-        done += 1
-        if progress is not None:
-            progress(done, total)
+        responses = (lin.responses(sp_vstack_dense(feature_rows, model.cable_jacobian(x)))
+                     if index in states else None)
+        loaded, contacts = presses[index]
+        moved = [lin.responses(press.points.directional_rows(press.directions,
+                                                             model.node_count))
+                 @ press.magnitudes_n for press in loaded]
+        inputs = CableInputs(controls, actuations[index])
+        reached = [_contact_state(model, inputs, equilibrium, features, feature_normals, press,
+                                  lin.factorization) for press in contacts]
+        return _StateSnapshots(responses, [x + m.reshape(-1, 3) for m in moved],
+                               [state for state in reached if state is not None]
+                               ), lin.factorization
+
+    first, factor = at_state(0, None)
+    report(len(actuations) + 1)
+    rest = map_on_cores(lambda i: at_state(i + 1, factor)[0], len(actuations) - 1,
+                        lambda done: report(len(actuations) + 1 + done))
+    snapshots = [first, *rest]
+    responses = [s.responses for s in snapshots if s.responses is not None]
+    loaded = [x for s in snapshots for x in s.loaded_mm]
+    contacts = [c for s in snapshots for c in s.contacts]
     shape = (0, model.node_count, 3)
     return TrainingSet(
-        actuations=np.asarray(actuations, float), positions_mm=np.array(positions),
-        tensions_n=np.array(tensions), responses=np.hstack(responses),
-        response_states=states, loaded_mm=np.array(loaded), max_force_n=float(max_force_n),
-        contact_mm=np.array(contacts) if contacts else np.zeros(shape),
-        contact_tensions_n=np.array(contact_tensions).reshape(len(contacts), len(controls)),
-        contact_responses=(np.hstack(contact_responses) if contact_responses
+        actuations=np.asarray(actuations, float),
+        positions_mm=np.array([e.positions_mm for e in equilibria]),
+        tensions_n=np.array([e.cable_tensions_n for e in equilibria]),
+        responses=np.hstack(responses), response_states=states, loaded_mm=np.array(loaded),
+        max_force_n=float(max_force_n),
+        contact_mm=np.array([x for x, _, _ in contacts]) if contacts else np.zeros(shape),
+        contact_tensions_n=np.array([t for _, t, _ in contacts]).reshape(len(contacts),
+                                                                         len(controls)),
+        contact_responses=(np.hstack([r for _, _, r in contacts]) if contacts
                            else np.zeros((3 * model.node_count, 0))),
     )
 
 
+def _draw_presses(rng: np.random.Generator, features: Attachment,
+                  feature_normals: np.ndarray, sites: ContactSites | None, max_force_n: float
+                  ) -> tuple[list[_Press], list[_Press]]:
+    """One static equilibrium's random loads, drawn from `rng` in a fixed order: its loaded
+    states (one, then two contacts pressing inwards at random features, LOADED_CONTACTS) and
+    its contact equilibria (sites.per_state: one or two forces at random surface nodes,
+    their total max_force_n times [CONTACT_LOW, CONTACT_HIGH])."""
+    loaded = []
+    for count in LOADED_CONTACTS:
+        picks = rng.choice(len(feature_normals), size=count, replace=False)
+        magnitudes = rng.uniform(0.3, 1.0, count) * max_force_n / count
+        loaded.append(_Press(features.subset(picks), -feature_normals[picks], magnitudes))
+    contacts = []
+    for _ in range(0 if sites is None else sites.per_state):
+        count = int(rng.integers(1, 3))
+        picks = rng.choice(len(sites.nodes), size=count, replace=False)
+        total = rng.uniform(CONTACT_LOW, CONTACT_HIGH) * max_force_n
+        contacts.append(_Press(Attachment.at_nodes(sites.nodes[picks]), -sites.normals[picks],
+                               rng.dirichlet(np.ones(count)) * total))
+    return loaded, contacts
+
+
 def _contact_state(model: FEModel, inputs: CableInputs, unloaded: Equilibrium,
-                   features: Attachment, feature_normals: np.ndarray, sites: ContactSites,
-                   max_force_n: float, rng: np.random.Generator, factor: Factor | None
-                   ) -> tuple[Equilibrium, np.ndarray] | None:
-    """One contact equilibrium from `unloaded`: (the equilibrium, responses (3n, p + a + 2))
-    to the features' rest normals, the cables and its (up to two) contacts, or None when
-    Newton's method does not reach it (a load the body buckles under: left out)."""
-    count = int(rng.integers(1, 3))
-    picks = rng.choice(len(sites.nodes), size=count, replace=False)
-    total = rng.uniform(CONTACT_LOW, CONTACT_HIGH) * max_force_n
-    points = Attachment.at_nodes(sites.nodes[picks])
-    forces = -sites.normals[picks] * rng.dirichlet(np.ones(count))[:, None] * total
-    loads = PointLoads(points, forces)
+                   features: Attachment, feature_normals: np.ndarray, press: _Press,
+                   factor: Factor | None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """One contact equilibrium from `unloaded`: (its positions (n, 3) mm, cable tensions (a,)
+    N, responses (3n, p + a + 2) to the features' rest normals, the cables and its (up to
+    two) contacts), or None when Newton's method does not reach it (a load the body buckles
+    under: left out)."""
+    loads = press.loads
     try:
         loaded = solve_equilibrium(model, inputs, loads, start_mm=unloaded.positions_mm,
                                    settings=ATTEMPT)
@@ -235,11 +288,11 @@ def _contact_state(model: FEModel, inputs: CableInputs, unloaded: Equilibrium,
         return None
     x = loaded.positions_mm
     lin = linearize(model, x, loaded.cable_tensions_n, loads, factorization=factor)
-    contact_rows = points.directional_rows(-sites.normals[picks], model.node_count).toarray()
+    contact_rows = press.points.directional_rows(press.directions, model.node_count).toarray()
     rows = np.vstack([features.directional_rows(feature_normals, model.node_count).toarray(),
                       model.cable_jacobian(x), contact_rows,
-                      np.zeros((2 - count, 3 * model.node_count))])
-    return loaded, lin.responses(rows)
+                      np.zeros((2 - len(press.magnitudes_n), 3 * model.node_count))])
+    return x, loaded.cable_tensions_n, lin.responses(rows)
 
 
 def _continued(model: FEModel, controls: tuple[str, ...], target: np.ndarray,
