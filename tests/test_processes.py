@@ -38,6 +38,21 @@ def test_progress_counts_the_tasks_as_they_end():
     assert seen == [1, 2, 3, 4, 5]
 
 
+def test_a_stop_keeps_the_first_results_in_order_and_cancels_the_rest():
+    """A stop asked after the second task ends: the tasks not yet handed to a worker are
+    cancelled, and the results are the first ones in order that ended (those handed over,
+    running or queued for a worker, end too: at most one more per worker and one)."""
+    seen: list[int] = []
+
+    def task(i: int) -> int:
+        time.sleep(0.05 * (i + 1))
+        return i
+
+    results = map_on_cores(task, 20, seen.append, lambda: len(seen) >= 2)
+    assert results == list(range(len(results)))
+    assert 2 <= len(results) <= 3 + 2 * worker_count(20) < 20
+
+
 def test_the_first_failure_in_order_is_raised_whichever_ends_first():
     """Task 3 fails at once, task 1 after a while: in turn, task 1's failure comes first."""
 

@@ -52,6 +52,7 @@ from softforce_cli.diagnosis.solves import (
 from softforce_cli.diagnosis.states import States, group_states, trajectory_segments
 from softforce_cli.diagnosis.support import support_basis
 from softforce_cli.errors import SolverError
+from softforce_cli.fem.processes import map_on_cores
 from softforce_cli.fem.threads import one_blas_thread
 from softforce_cli.model.effects import FrameContext, frame_contexts
 from softforce_cli.model.regions import node_regions
@@ -373,16 +374,19 @@ def _nominal(result: Diagnosis, solutions: StateSolutions, columns: ColumnSet,
 
 def _screen_hypotheses(result: Diagnosis, judge: _Judge) -> None:
     """Every hypothesis on the first-order model, relative (and absolute where it may be
-    static: hypotheses.ABSOLUTE), into result.screened, best first."""
+    static: hypotheses.ABSOLUTE), into result.screened, best first; on the machine's cores
+    (fem.processes: each fit is independent of the others)."""
     robot = result.robot
     tasks = [(Candidate((h,)), relative)
              for h in hypotheses(robot, judge.exact.basis.column_set, judge.exact.basis.support)
              for relative in (True, False) if relative or h.name in ABSOLUTE]
-    for i, (candidate, relative) in enumerate(tasks):
-        judge.check_stop()
-        judge.report("screening", i, len(tasks))
-        result.screened.append(judge.screen(candidate, relative))
-    judge.report("screening", len(tasks), len(tasks))
+    judge.inputs.own_cable_columns  # noqa: B018 (cached once here, for every worker)
+    judge.report("screening", 0, len(tasks))
+    screened = map_on_cores(lambda i: judge.screen(*tasks[i]), len(tasks),
+                            lambda done: judge.report("screening", done, len(tasks)),
+                            judge.stop_requested)
+    result.screened.extend(screened)  # what a stop leaves is kept, in order
+    judge.check_stop()
     result.screened.sort(key=lambda s: -excess_share(s.heldout, judge.floor))
 
 

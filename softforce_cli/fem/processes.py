@@ -65,19 +65,25 @@ def _kilobytes(path: str, field: str) -> int | None:
 
 
 def map_on_cores(task: Callable[[int], Result], count: int,
-                 progress: Callable[[int], None] | None = None) -> list[Result]:
+                 progress: Callable[[int], None] | None = None,
+                 stop: Callable[[], bool] | None = None) -> list[Result]:
     """[task(0), ..., task(count - 1)], run in forked worker processes (worker_count);
     progress(done) after each task ends, in this process.
 
     The results come in order, and so do the tasks' exceptions: the first task in order to
     raise raises here, as it would in turn, and the tasks after it that have not started are
-    cancelled. A task's result and exception must pickle.
+    cancelled. A task's result and exception must pickle. When stop() turns true (asked
+    after each task ends), the tasks not yet handed to a worker are cancelled, those handed
+    over end (the pool queues one more than its workers), and the results are those of the
+    first tasks in order that ended: fewer than `count`.
     """
     global _task
     workers = worker_count(count)
     if workers == 1:
         results = []
         for i in range(count):
+            if stop is not None and stop():
+                break
             results.append(task(i))
             if progress is not None:
                 progress(i + 1)
@@ -93,7 +99,16 @@ def map_on_cores(task: Callable[[int], Result], count: int,
                         break  # raised below, after the failures before it in order
                     if progress is not None:
                         progress(done)
-                return [future.result() for future in futures]
+                    if stop is not None and stop():
+                        for pending in futures:
+                            pending.cancel()
+                        break
+                results = []
+                for future in futures:
+                    if future.cancelled():
+                        break
+                    results.append(future.result())
+                return results
             except BaseException:
                 for future in futures:
                     future.cancel()
