@@ -900,7 +900,7 @@ def test_a_static_effect_is_reported_with_the_mesh_allowance(monkeypatch, sample
         def final(self, screened):
             refitted.append(screened.candidate)
             values = np.array([0.18, 0.98])
-            fitted = Refit(screened.candidate, values, None, None, None, 0, values)
+            fitted = Refit(screened.candidate, values, None, None, None, 7, values)
             return Final(screened, fitted, held(pair_mm), np.array([[0.16, 0.2], [0.97, 0.99]]),
                          True, None)
 
@@ -935,6 +935,7 @@ def test_a_static_effect_is_reported_with_the_mesh_allowance(monkeypatch, sample
     assert allowance["alone"]["parameters"]["stiffness_n_per_mm"]["value"] == pytest.approx(
         1 / 0.246, rel=1e-5)
     assert allowance["alone"]["heldout_rms_after_mm"] == pytest.approx(0.327)
+    assert entry["evidence"]["fe_solves"] == 0 + 7  # the fit alone's and the pair's
     text = fitted_robot_toml(SAMPLE_ROBOT, result, SAMPLE_ROBOT.parent)
     effects = {e["name"]: e for e in tomllib.loads(text)["effect"]}
     assert effects["compliant_base"]["stiffness_n_per_mm"] == pytest.approx(1 / 0.18)

@@ -113,7 +113,10 @@ def effect_entry(item: Final | Screened, floor_mm: float, selected: bool,
             "segment_gain_z": _finite(held.gain_z()),
             "excess_share": _finite(excess_share(held, floor_mm)),
             "explained_mm": _finite(explained_mm(held)),
-            "fe_solves": item.refit.solves if isinstance(item, Final) else 0,
+            # with the mesh's allowance, the solves of both fits
+            "fe_solves": (item.refit.solves + (0 if with_mesh is None else
+                                                with_mesh.refit.solves)
+                          if isinstance(item, Final) else 0),
             # values the exact model could not follow, after which the refit pulled back
             "no_equilibrium": ([str(e) for e in item.refit.unreached]
                                if isinstance(item, Final) else []),
