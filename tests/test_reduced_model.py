@@ -296,6 +296,22 @@ def test_nnls_that_drops_columns_on_the_way_is_still_scipys(seed):
     np.testing.assert_allclose(dense, reference, atol=1e-6 * np.abs(reference).max())
 
 
+@pytest.mark.parametrize("seed", [1, 2])
+def test_nnls_whose_factor_grows_and_shrinks_many_times_is_still_scipys(seed):
+    # 240-250 active columns, about a hundred leaving on the way: the factor's buffer
+    # regrows past its first 64 columns, and every exit restores its padding
+    rng = np.random.default_rng(seed)
+    C = rng.normal(size=(400, 60)) @ rng.normal(size=(60, 500)) + 0.05 * rng.normal(
+        size=(400, 500))
+    b = rng.normal(size=400)
+    exact = sparse_nnls(C, b, tolerance=0.0)
+    reference, _ = nnls(C, b, maxiter=10_000)
+    assert len(exact.elements) == np.count_nonzero(reference) > 200
+    dense = np.zeros(500)
+    dense[exact.elements] = exact.weights
+    np.testing.assert_allclose(dense, reference, atol=1e-8 * np.abs(reference).max())
+
+
 def test_pod_recovers_a_known_subspace():
     rng = np.random.default_rng(4)
     subspace = np.linalg.qr(rng.normal(size=(300, 4)))[0]
