@@ -12,6 +12,7 @@ import json
 import pickle
 import shutil
 import warnings
+from types import SimpleNamespace
 
 import meshio
 import numpy as np
@@ -41,6 +42,7 @@ from softforce_cli.fem.reduction.train import (
     CLAMP_CLEARANCE_MM,
     TrainingSettings,
     contact_sites,
+    ecsw_system,
     energy_norms,
     every_point,
     projected_states,
@@ -310,6 +312,45 @@ def test_nnls_whose_factor_grows_and_shrinks_many_times_is_still_scipys(seed):
     dense = np.zeros(500)
     dense[exact.elements] = exact.weights
     np.testing.assert_allclose(dense, reference, atol=1e-8 * np.abs(reference).max())
+
+
+def test_ecsw_system_stacks_each_block_in_its_state_norm_scaled_to_unit_target():
+    # blocks of r rows, norms that keep r, r - 1 or r - 2 of them (taut cables held), a
+    # zero target left out: the system is the blocks stacked as the method describes
+    rng = np.random.default_rng(9)
+    r, columns, directions = 4, 7, 2
+    states = rng.normal(size=(3, 5, 3))
+    data = SimpleNamespace(responses=rng.normal(size=(9, 6)), response_states=np.array([0, 2]))
+    basis = rng.normal(size=(9, r))
+    own = {float(x[0, 0]): rng.uniform(size=(r, columns)) for x in states}
+    own[float(states[1, 0, 0])][:] = 0.0
+    tangent = rng.uniform(size=(r * directions, columns))
+
+    def contributions(x, directions_):
+        return own[float(x[0, 0])] if directions_ is None else tangent
+
+    norms = [None, rng.normal(size=(r - 1, r)), rng.normal(size=(r - 2, r))]
+    C, b, targets = ecsw_system(basis, data, states, norms, directions, contributions)
+    expected_C, expected_b = [], []
+    blocks = [(own[float(x[0, 0])], k) for k, x in enumerate(states)]
+    blocks += [(part, k) for k in (0, 2) for part in np.split(tangent, directions)]
+    for (block, owner), target in zip(blocks, targets, strict=True):
+        np.testing.assert_array_equal(target, block.sum(axis=1))
+        if norms[owner] is not None:
+            block, target = norms[owner] @ block, norms[owner] @ target
+        if np.linalg.norm(target) > 0:
+            expected_C.append(block / np.linalg.norm(target))
+            expected_b.append(target / np.linalg.norm(target))
+    assert C.shape == (4 + 2 + 2 * (4 + 2), columns)
+    np.testing.assert_allclose(C, np.vstack(expected_C), rtol=1e-14)
+    np.testing.assert_allclose(b, np.concatenate(expected_b), rtol=1e-14)
+    # the second pass: given targets are used, not the blocks' sums (the second state's
+    # block, its own sum zero, now enters with the r - 1 rows of its norm)
+    given = [t + 1.0 for t in targets]
+    _, b_given, kept = ecsw_system(basis, data, states, norms, directions, contributions, given)
+    assert all(k is g for k, g in zip(kept, given, strict=True))
+    assert len(b_given) == len(b) + r - 1
+    np.testing.assert_allclose(b_given[:r], given[0] / np.linalg.norm(given[0]), rtol=1e-14)
 
 
 def test_pod_recovers_a_known_subspace():
