@@ -504,10 +504,9 @@ def _camera_with_the_mesh(result: Diagnosis, judge: _Judge, solutions: StateSolu
     if (first.screened.channel != "clouds" or first.screened.relative
             or first.candidate.hypotheses[0].kind != "sensor"):
         return
-    bracket = _mesh_bracket(result, solutions, cache)
-    if bracket is None or bracket.load_scale == 1.0:
+    allowance = _mesh_allowance(result, solutions, cache)
+    if allowance is None:
         return
-    allowance = mesh_allowance(bracket)
     cameras = [s for s in _best_per_effect(result.screened) if not s.relative
                and s.candidate.hypotheses[0].kind == "sensor"
                and _table_agrees(s.table_misfit_mm, judge.table)]
@@ -550,10 +549,15 @@ def _camera_with_the_mesh(result: Diagnosis, judge: _Judge, solutions: StateSolu
         result.selected.append(pair)
 
 
-def mesh_allowance(bracket: ElementBracket) -> Hypothesis:
+def _mesh_allowance(result: Diagnosis, solutions: StateSolutions, cache: SolveCache
+                    ) -> Hypothesis | None:
     """The mesh's own stiffness error as a hypothesis: a stiffness scale between 1 and the
     other quadratic element's 1 / load scale (solves.element_bracket: the two elements on
-    the robot's mesh bracket the converged body)."""
+    the robot's mesh bracket the converged body); None without a bracket, or with one that
+    leaves no room."""
+    bracket = _mesh_bracket(result, solutions, cache)
+    if bracket is None or bracket.load_scale == 1.0:
+        return None
     stiffness = sorted((1.0, 1.0 / bracket.load_scale))
     return Hypothesis("stiffness_scale", None, ("scale",), np.ones(1),
                       np.array(stiffness[:1]), np.array(stiffness[1:]))
@@ -562,7 +566,7 @@ def mesh_allowance(bracket: ElementBracket) -> Hypothesis:
 def _with_the_mesh(result: Diagnosis, judge: _Judge, solutions: StateSolutions,
                    cache: SolveCache) -> None:
     """Refit each selected static effect of WITH_MESH_ALLOWANCE (on the clouds' absolute
-    residuals) together with the mesh's allowance (mesh_allowance), into result.with_mesh
+    residuals) together with the mesh's allowance (_mesh_allowance), into result.with_mesh
     when that fit is accepted and leaves no more held-out error than the effect alone
     (within selection.SAME_FIT_SHARE: the pair holds the effect alone, so more means its
     refit stopped short). Fitted alone, such an effect takes up the coarse mesh's own
@@ -574,10 +578,9 @@ def _with_the_mesh(result: Diagnosis, judge: _Judge, solutions: StateSolutions,
     chosen = [final for final in result.selected if takes_the_mesh(final)]
     if not chosen:
         return
-    bracket = _mesh_bracket(result, solutions, cache)
-    if bracket is None or bracket.load_scale == 1.0:
+    allowance = _mesh_allowance(result, solutions, cache)
+    if allowance is None:
         return
-    allowance = mesh_allowance(bracket)
     for i, final in enumerate(chosen):
         judge.check_stop()
         judge.report("mesh allowance", i, len(chosen))
