@@ -385,12 +385,12 @@ def ecsw_system(basis: np.ndarray, data: TrainingSet, states_mm: np.ndarray,
                 yield part, int(index)
 
     count = len(states_mm) + len(data.response_states) * min(directions, r)
-    sums: list[np.ndarray] = []
+    used_targets: list[np.ndarray] = []
     C = b = None
     rows = 0
     for k, (block, owner) in enumerate(blocks()):
         target = block.sum(axis=1) if targets is None else targets[k]
-        sums.append(target)
+        used_targets.append(target)
         if norms[owner] is not None:
             block, target = norms[owner] @ block, norms[owner] @ target
         norm = float(np.linalg.norm(target))
@@ -404,8 +404,8 @@ def ecsw_system(basis: np.ndarray, data: TrainingSet, states_mm: np.ndarray,
         b[rows:rows + len(block)] = target / norm
         rows += len(block)
     if C is None:
-        return np.zeros((0, 0)), np.zeros(0), sums
-    return C[:rows], b[:rows], sums
+        return np.zeros((0, 0)), np.zeros(0), used_targets
+    return C[:rows], b[:rows], used_targets
 
 
 def validate(model: FEModel, reduction: Reduction, controls: tuple[str, ...], low: np.ndarray,
