@@ -9,7 +9,7 @@ out/bench_reduced/ (diamond_p2.rom.npz, diamond_p2_fast.rom.npz: delete one to r
 alone, this script prints the rows and writes the accuracy plot:
 
     .venv/bin/python benchmarks/bench_reduced.py [--study] [--tangent] [--solve] [--capacity]
-        [--starts]
+        [--starts] [--sensitivity]
 
 --study also sweeps the basis size and the ECSW tolerance on the cached snapshots, senses
 benchmarks/bench_sense.py's probe recording through each model, and writes
@@ -22,7 +22,10 @@ cases against the basis size alone (200, 280 and 400 modes, integrated exactly; 
 minutes), then 280 modes hyper-reduced as the bench trains them, with their update (7
 minutes more). --starts compares static solves given no start (the nearest start
 equilibrium moved to first order: the training equilibria and the grid, or the training
-equilibria alone) with solves from rest at 16 random actuations (a minute).
+equilibria alone) with solves from rest at 16 random actuations (a minute). --sensitivity
+sets the reduced model's W error at the loaded cases beside how far the full model's own W
+moves when the force, a cable or the contact point moves by what sensing cannot pin down
+(a minute).
 """
 
 from __future__ import annotations
@@ -607,9 +610,67 @@ def starts_study(count: int = 16) -> None:
           " apart")
 
 
+# how far sensing's inputs may be off (the sensitivity study): a force, a cable, a point
+SENSITIVITY_FORCE = 0.05
+SENSITIVITY_CABLE_MM = 0.1
+SENSITIVITY_POINT_MM = 0.5
+
+
+def _tangents(direction: np.ndarray) -> np.ndarray:
+    """(2, 3) orthonormal directions perpendicular to `direction` (3,)."""
+    return np.linalg.svd(np.asarray(direction, float)[None])[2][1:]
+
+
+def sensitivity_study() -> None:
+    """How far the full model's own W moves at the loaded cases when an input moves by what
+    sensing cannot pin down (the force by 5%, one cable by 0.1 mm, the contact point by 0.5
+    mm along the surface, both ways on two axes: the largest over cables and moves), beside
+    the reduced model's W error there (the bench's 1e-2 model; a minute)."""
+    full, reduced = reduced_robot()
+    blocks = ("W_ea", "W_ef", "W_aa", "W_af")
+
+    def errors(expected, found, held: np.ndarray) -> np.ndarray:
+        """(5,) relative Frobenius errors of the four blocks and of the held W_ef."""
+        pairs = [(np.asarray(getattr(expected, b)), np.asarray(getattr(found, b)))
+                 for b in blocks] + [(expected.held_ef(held), found.held_ef(held))]
+        return np.array([np.linalg.norm(b - a) / np.linalg.norm(a) for a, b in pairs])
+
+    print("| case | change | " + " | ".join(blocks) + " | held W_ef |")
+    print("|---|---|" + "---|" * (len(blocks) + 1))
+    for name, case in cases(full, SETTINGS.max_force_n):
+        if not len(case.forces_n) or "two contacts" in name:
+            continue
+        answer = reference(full, name, case)
+        held = held_cables(case, answer)
+
+        def moved(changed: LoadCase, answer=answer, held=held) -> np.ndarray:
+            return errors(answer.compliance, respond(full.fe_model, changed, full.feature_nodes,
+                                                     full.feature_normals).compliance, held)
+
+        steps = np.eye(len(case.inputs.values))
+        rows = {
+            "reduced model (ECSW 1e-2)": errors(answer.compliance, respond(
+                reduced.fe_model, case, full.feature_nodes, full.feature_normals).compliance,
+                held),
+            f"full, force {100 * SENSITIVITY_FORCE:.0f}% less": moved(dataclasses.replace(
+                case, forces_n=(1 - SENSITIVITY_FORCE) * case.forces_n)),
+            f"full, a cable {SENSITIVITY_CABLE_MM} mm further (largest)": np.max([moved(
+                dataclasses.replace(case, inputs=full.cable_inputs(
+                    case.inputs.values + SENSITIVITY_CABLE_MM * step))) for step in steps],
+                axis=0),
+            f"full, the point {SENSITIVITY_POINT_MM} mm along the surface (largest of 4)": np.max(
+                [moved(dataclasses.replace(case, points_mm=case.points_mm
+                                           + SENSITIVITY_POINT_MM * sign * tangent))
+                 for tangent in _tangents(case.forces_n[0]) for sign in (1, -1)], axis=0),
+        }
+        for change, values in rows.items():
+            print(f"| {name} | {change} | "
+                  + " | ".join(f"{100 * v:.1f}%" for v in values) + " |", flush=True)
+
+
 # studies that replace the rows (--study prints the rows after it)
 STUDIES = {"--starts": starts_study, "--capacity": capacity_study, "--tangent": tangent_study,
-           "--solve": solve_study}
+           "--solve": solve_study, "--sensitivity": sensitivity_study}
 
 if __name__ == "__main__":
     chosen = [function for flag, function in STUDIES.items() if flag in sys.argv]
