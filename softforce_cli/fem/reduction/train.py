@@ -361,8 +361,8 @@ def ecsw_system(basis: np.ndarray, data: TrainingSet, states_mm: np.ndarray,
     """C (rows, columns), b (rows,) of the ECSW fit, and the blocks' exact targets.
 
     Blocks: the reduced internal forces at every training state (data.states_mm, projected:
-    states_mm; contact equilibria included; their tangents are not fitted: 36 more states
-    times 8 directions made the system of the coarse Diamond outgrow 24 GB), and the reduced
+    states_mm; contact equilibria included; their tangents are not fitted: along 2 or 8
+    directions each they made the loaded cases worse, docs/reduced_model.md), and the reduced
     tangents along the leading reduced response directions at the response states;
     `contributions(x, Q or None)` gives a block's columns (elements or points). A block is
     weighted by its state's energy norm (norms, aligned with the states; None: its own
