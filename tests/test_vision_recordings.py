@@ -5,6 +5,7 @@ camera pose it was rendered from."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -13,13 +14,16 @@ from scipy.spatial import cKDTree
 
 from softforce_cli.calibration.rigid import RigidTransform
 from softforce_cli.io.mcap_reader import iter_frames
+from softforce_cli.sim.simulate import simulate
 from softforce_cli.vision.feature_matching import match_features
-from softforce_cli.vision.pipeline import STAGES, process_frame
+from softforce_cli.vision.filters import crop_box_from_bounds, neighbour_counts, voxel_downsample
+from softforce_cli.vision.pipeline import STAGES, process_frame, robot_distance_mm
 from softforce_cli.vision.point_cloud import cloud_from_frame
 from softforce_cli.vision.segmentation import learn_robot_colour
 from softforce_cli.vision.settings import VisionSettings, settings_for_camera
 
-RECORDING = Path(__file__).resolve().parents[1] / "sample_data" / "recordings" / "probes.mcap"
+ROOT = Path(__file__).resolve().parents[1]
+RECORDING = ROOT / "sample_data" / "recordings" / "probes.mcap"
 SCENE_ROBOT_RGB = np.array([40, 90, 210])  # the scenario's robot paint (scenario defaults)
 
 
@@ -29,8 +33,9 @@ def probes(sample_robot):
     pose = RigidTransform(np.array(truth["camera"]["rotation"]),
                           np.array(truth["camera"]["translation_mm"]))
     frames = list(iter_frames(RECORDING))
-    settings = settings_for_camera(VisionSettings(), frames[0].intrinsics.fx)
     mesh = sample_robot.mesh
+    settings = settings_for_camera(VisionSettings(), frames[0].intrinsics.fx,
+                                   robot_distance_mm(mesh.bounds_mm, pose))
     surface = np.vstack([mesh.nodes_mm[mesh.surface_nodes],
                          mesh.nodes_mm[mesh.surface_faces].mean(axis=1)])
     first = frames[0]
@@ -166,3 +171,42 @@ def test_default_settings_are_scaled_to_the_recording_camera(probes, sample_robo
                              excluded_box_mm=box)
     assert len(as_given.cloud) < 0.7 * len(scaled.cloud)  # 20 neighbours: the robot thinned
     assert len(as_given.contacts) == 0  # no probe point has more than 3 robot neighbours
+
+
+def _robot_density(frame, pose: RigidTransform, bounds_mm: np.ndarray) -> float:
+    """Median neighbours within 5 mm of the points above the clamp (z > 50 mm) inside the
+    model's bounds, after the default VoxelGrid: the robot's point density."""
+    cloud = cloud_from_frame(frame.depth_mm, frame.color, frame.intrinsics, pose,
+                             crop_box_from_bounds(bounds_mm, 0.0))
+    points = voxel_downsample(cloud, VisionSettings().voxel_mm).points_mm
+    points = points[points[:, 2] > 50.0]
+    return float(np.median(neighbour_counts(points, 5.0)))
+
+
+def test_neighbour_counts_scale_with_the_measured_point_density(probes, sample_robot, tmp_path):
+    """settings_for_camera scales the counts with the robot's point density. Reference: the
+    density measured on the sample's first frame (424x240) and on the same scene simulated at
+    1280x720 (about 4.9 times as dense). The focal length squared alone, the rule before,
+    predicted 9.2 times, and at 1280x720 missed 11 of 60 probe contacts."""
+    _, pose, _, _, _ = probes
+    source = (ROOT / "sample_data" / "scenarios" / "probes.toml").read_text()
+    relative = re.search(r'^robot = "(.+)"$', source, re.MULTILINE).group(1)
+    robot = (ROOT / "sample_data" / "scenarios" / relative).resolve().as_posix()
+    first_frame = source[:source.index("[[frame]]", source.index("[[frame]]") + 1)]
+    scenario = (first_frame.replace(f'"{relative}"', json.dumps(robot))
+                .replace("width = 424", "width = 1280").replace("height = 240", "height = 720"))
+    (tmp_path / "hd.toml").write_text(scenario)
+    hd = next(iter_frames(simulate(tmp_path / "hd.toml", tmp_path / "hd.mcap").recording))
+    low = next(iter_frames(RECORDING))
+    bounds = sample_robot.mesh.bounds_mm
+    measured = _robot_density(hd, pose, bounds) / _robot_density(low, pose, bounds)
+    many = VisionSettings(outlier_min_neighbours=10_000)
+    distance = robot_distance_mm(bounds, pose)
+
+    def scale(focal_px: float) -> float:
+        return settings_for_camera(many, focal_px, distance).outlier_min_neighbours / 10_000
+
+    predicted = scale(hd.intrinsics.fx) / scale(low.intrinsics.fx)
+    assert 4.0 < measured < 6.0
+    assert predicted == pytest.approx(measured, rel=0.15)
+    assert (hd.intrinsics.fx / low.intrinsics.fx) ** 2 > 1.5 * measured

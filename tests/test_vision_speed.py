@@ -18,7 +18,7 @@ import pytest
 from softforce_cli.calibration.rigid import RigidTransform
 from softforce_cli.io.mcap_reader import iter_frames
 from softforce_cli.sim.simulate import simulate
-from softforce_cli.vision.pipeline import STAGES, process_frame
+from softforce_cli.vision.pipeline import STAGES, process_frame, robot_distance_mm
 from softforce_cli.vision.settings import VisionSettings, settings_for_camera
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,9 +47,10 @@ def test_vision_stage_speed_and_accuracy_at_640x480(probes_640, sample_robot):
     pose = RigidTransform(np.array(truth["camera"]["rotation"]),
                           np.array(truth["camera"]["translation_mm"]))
     assert frames[0].intrinsics.width == 640
-    settings = settings_for_camera(VisionSettings(), frames[0].intrinsics.fx)
-    assert settings.outlier_min_neighbours == 20  # the paper's values at this resolution
     mesh = sample_robot.mesh
+    settings = settings_for_camera(VisionSettings(), frames[0].intrinsics.fx,
+                                   robot_distance_mm(mesh.bounds_mm, pose))
+    assert settings.outlier_min_neighbours == 20  # the paper's values at this resolution
     arguments = dict(
         intrinsics=frames[0].intrinsics, robot_from_camera=pose, model_bounds_mm=mesh.bounds_mm,
         feature_positions_mm=mesh.nodes_mm[sample_robot.feature_nodes],

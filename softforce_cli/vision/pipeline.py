@@ -81,6 +81,14 @@ class VisionResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
+def robot_distance_mm(model_bounds_mm: np.ndarray, robot_from_camera: RigidTransform
+                      ) -> float:
+    """mm from the camera to the centre of the model's bounds (2, 3) [min, max], robot frame
+    (the distance settings_for_camera scales the neighbour counts for)."""
+    centre = np.asarray(model_bounds_mm, dtype=float).reshape(2, 3).mean(axis=0)
+    return float(np.linalg.norm(centre - robot_from_camera.translation_mm))
+
+
 def process_frame(
     depth_mm: np.ndarray,
     color: np.ndarray,
@@ -99,8 +107,9 @@ def process_frame(
     depth_mm (h, w) uint16, color (h, w, 3) uint8; model_bounds_mm (2, 3) [min, max] of the
     model's current shape (robot frame); feature_positions_mm (p, 3) and feature_normals
     (p, 3) at the current shape; robot_rgb (3,); excluded_box_mm (6,) the clamped region.
-    The neighbour counts of settings are scaled to the camera's focal length unless
-    settings.scale_to_camera is False (settings.settings_for_camera).
+    The neighbour counts of settings are scaled to the camera (its focal length, and its
+    distance to the model's bounds) unless settings.scale_to_camera is False
+    (settings.settings_for_camera).
     table_plane: a previous frame's VisionResult.table_plane, to skip fitting it again when
     the camera does not move (saves 2-5 ms a frame); None fits it on this frame.
     """
@@ -125,9 +134,10 @@ def observe_frame(
     cloud, filters, segmentation, contacts. A sensor runs them on the next frame while its FE
     model settles on this one (estimation.lookahead)."""
     clock = _Clock()
-    if settings.scale_to_camera:
-        settings = settings_for_camera(settings, intrinsics.fx)
     bounds = np.asarray(model_bounds_mm, dtype=float).reshape(2, 3)
+    if settings.scale_to_camera:
+        settings = settings_for_camera(settings, intrinsics.fx,
+                                       robot_distance_mm(bounds, robot_from_camera))
     box = crop_box_from_bounds(bounds, settings.crop_margin_mm)
     plane = table_plane
     if plane is None:

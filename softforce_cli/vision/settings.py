@@ -111,8 +111,9 @@ class VisionSettings:
     Other cameras:
     scale_to_camera        : True, the neighbour counts above (outlier_min_neighbours,
                              contact_min_neighbours) are those of a 640x480 D415, the paper's
-                             camera; pipeline.process_frame scales them to the frame's focal
-                             length with settings_for_camera. False uses them as given.
+                             camera; pipeline.process_frame scales them to the frame's camera
+                             (its focal length and distance to the robot) with
+                             settings_for_camera. False uses them as given.
     """
 
     voxel_mm: float = 1.1
@@ -162,18 +163,30 @@ class VisionSettings:
 REFERENCE_FOCAL_PX = 465.6
 
 
-def settings_for_camera(settings: VisionSettings, focal_px: float) -> VisionSettings:
-    """The settings with their neighbour counts scaled to a camera of focal length focal_px.
+def settings_for_camera(settings: VisionSettings, focal_px: float, distance_mm: float
+                        ) -> VisionSettings:
+    """The settings with their neighbour counts scaled to a camera of focal length focal_px
+    seeing the robot from distance_mm.
 
-    Points per area of surface grow with the square of the focal length (pixels per mm), so a
-    424x240 stream (fx about 308) has under half the neighbours of a 640x480 one within the
-    same radius: with the 640x480 counts the outlier filter removes most of the robot and no
-    contact point has more than 3 robot neighbours. outlier_min_neighbours and
-    contact_min_neighbours are multiplied by (focal_px / REFERENCE_FOCAL_PX)^2 and rounded
-    (at least 1 and 0); the 640x480 D415 keeps the paper's values. The result has
-    scale_to_camera False.
+    outlier_min_neighbours and contact_min_neighbours are multiplied by the ratio of the
+    robot's point density to that of the 640x480 D415 (REFERENCE_FOCAL_PX) at the same
+    distance, and rounded (at least 1 and 0). After the VoxelGrid a surface holds about one
+    point per p max(p, v) of area, with p = distance_mm / focal_px a pixel's footprint and v
+    the grid's leaf: p^2 while pixels are coarser than the leaf; finer ones are merged
+    across the surface, but the depth noise spreads a leaf's pixels over leaves along the
+    view. Measured on the sample probes' first frame at 536 mm (robot points' median
+    neighbours within 5 mm, docs/vision.md): 17, 43 and 83 at 424x240, 640x480 and
+    1280x720, ratios 0.40 and 1.93 where this gives 0.44 and 2.09. With the 640x480 counts
+    at 424x240 the outlier filter removes most of the robot and no contact point has more
+    than 3 robot neighbours; scaled with the focal length squared at 1280x720 (80 and 12),
+    11 of 60 probe contacts went unseen. The result has scale_to_camera False.
     """
-    scale = (focal_px / REFERENCE_FOCAL_PX) ** 2
+
+    def density(focal: float) -> float:
+        footprint = distance_mm / focal
+        return 1.0 / (footprint * max(footprint, settings.voxel_mm))
+
+    scale = density(focal_px) / density(REFERENCE_FOCAL_PX)
     return replace(
         settings,
         scale_to_camera=False,  # scaled once: process_frame must not scale these again
