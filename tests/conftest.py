@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import re
 from pathlib import Path
 
 import pytest
@@ -14,6 +16,20 @@ SAMPLE_ROBOT_FINE = ROOT / "sample_data" / "diamond_fine" / "diamond.toml"
 SOFA_DIAMOND = ROOT.parent / "shared" / "robots" / "diamond"
 
 keep_freed_memory()
+
+
+def sample_probes_scenario(width: int, height: int, frames: int | None = None) -> str:
+    """sample_data/scenarios/probes.toml at another resolution, its first `frames` frames
+    (None: all), with its truth robot by absolute path so that a copy anywhere reads it."""
+    folder = ROOT / "sample_data" / "scenarios"
+    source = (folder / "probes.toml").read_text()
+    relative = re.search(r'^robot = "(.+)"$', source, re.MULTILINE).group(1)
+    if frames is not None:
+        starts = [m.start() for m in re.finditer(r"^\[\[frame\]\]", source, re.MULTILINE)]
+        source = source[:starts[frames]] if frames < len(starts) else source
+    return (source.replace(f'"{relative}"', json.dumps((folder / relative).resolve().as_posix()))
+            .replace("width = 424", f"width = {width}")
+            .replace("height = 240", f"height = {height}"))
 
 
 @pytest.fixture(scope="session")

@@ -5,8 +5,6 @@ camera pose it was rendered from."""
 from __future__ import annotations
 
 import json
-import re
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,8 +19,8 @@ from softforce_cli.vision.pipeline import STAGES, process_frame, robot_distance_
 from softforce_cli.vision.point_cloud import cloud_from_frame
 from softforce_cli.vision.segmentation import learn_robot_colour
 from softforce_cli.vision.settings import VisionSettings, settings_for_camera
+from tests.conftest import ROOT, sample_probes_scenario
 
-ROOT = Path(__file__).resolve().parents[1]
 RECORDING = ROOT / "sample_data" / "recordings" / "probes.mcap"
 SCENE_ROBOT_RGB = np.array([40, 90, 210])  # the scenario's robot paint (scenario defaults)
 
@@ -189,13 +187,7 @@ def test_neighbour_counts_scale_with_the_measured_point_density(probes, sample_r
     1280x720 (about 4.9 times as dense). The focal length squared alone, the rule before,
     predicted 9.2 times, and at 1280x720 missed 11 of 60 probe contacts."""
     _, pose, _, _, _ = probes
-    source = (ROOT / "sample_data" / "scenarios" / "probes.toml").read_text()
-    relative = re.search(r'^robot = "(.+)"$', source, re.MULTILINE).group(1)
-    robot = (ROOT / "sample_data" / "scenarios" / relative).resolve().as_posix()
-    first_frame = source[:source.index("[[frame]]", source.index("[[frame]]") + 1)]
-    scenario = (first_frame.replace(f'"{relative}"', json.dumps(robot))
-                .replace("width = 424", "width = 1280").replace("height = 240", "height = 720"))
-    (tmp_path / "hd.toml").write_text(scenario)
+    (tmp_path / "hd.toml").write_text(sample_probes_scenario(1280, 720, frames=1))
     hd = next(iter_frames(simulate(tmp_path / "hd.toml", tmp_path / "hd.mcap").recording))
     low = next(iter_frames(RECORDING))
     bounds = sample_robot.mesh.bounds_mm

@@ -8,9 +8,7 @@ median milliseconds of every stage (docs/vision.md quotes them).
 from __future__ import annotations
 
 import json
-import re
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,22 +18,15 @@ from softforce_cli.io.mcap_reader import iter_frames
 from softforce_cli.sim.simulate import simulate
 from softforce_cli.vision.pipeline import STAGES, process_frame, robot_distance_mm
 from softforce_cli.vision.settings import VisionSettings, settings_for_camera
+from tests.conftest import sample_probes_scenario
 
-ROOT = Path(__file__).resolve().parents[1]
 REPEATS = 40
 
 
 @pytest.fixture(scope="module")
 def probes_640(tmp_path_factory):
-    source = (ROOT / "sample_data" / "scenarios" / "probes.toml").read_text()
-    # the scenario's own truth robot, by absolute path: the copy lives in a temporary folder
-    relative = re.search(r'^robot = "(.+)"$', source, re.MULTILINE).group(1)
-    robot = (ROOT / "sample_data" / "scenarios" / relative).resolve().as_posix()
-    scenario = source.replace(f'"{relative}"', json.dumps(robot))
-    scenario = scenario.replace("width = 424", "width = 640").replace("height = 240",
-                                                                       "height = 480")
     folder = tmp_path_factory.mktemp("vision_speed")
-    (folder / "probes640.toml").write_text(scenario)
+    (folder / "probes640.toml").write_text(sample_probes_scenario(640, 480))
     result = simulate(folder / "probes640.toml", folder / "probes640.mcap")
     truth = json.loads(result.truth.read_text())
     return list(iter_frames(result.recording)), truth
