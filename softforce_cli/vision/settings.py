@@ -183,7 +183,8 @@ def settings_for_camera(settings: VisionSettings, focal_px: float, distance_mm: 
     """
 
     def density(focal: float) -> float:
-        footprint = distance_mm / focal
+        # a camera placed at the robot (a bad pose) still gets finite counts: the focal ratio
+        footprint = max(distance_mm, 1e-9) / focal
         return 1.0 / (footprint * max(footprint, settings.voxel_mm))
 
     scale = density(focal_px) / density(REFERENCE_FOCAL_PX)
