@@ -405,6 +405,20 @@ def test_bad_recordings_are_rejected(tmp_path, kwargs, message):
             read_summary(path)
 
 
+@pytest.mark.parametrize(("index", "value"),
+                         [(0, 0.0), (0, float("nan")), (4, float("inf")), (2, float("nan"))])
+def test_camera_info_without_a_usable_finite_matrix_is_refused(index, value):
+    # fx, fy or cx not a positive finite number: the camera is uncalibrated, not a crash
+    info = CameraCalibration.FromString(
+        fmt.encode_camera_info(CameraIntrinsics.from_fov(64, 48, 69.0), 0))
+    K = list(info.K)
+    K[index] = value
+    info.ClearField("K")
+    info.K.extend(K)
+    with pytest.raises(RecordingError, match="no usable camera matrix K"):
+        fmt.decode_camera_info(info.SerializeToString())
+
+
 def test_missing_and_non_mcap_files(tmp_path):
     with pytest.raises(RecordingError, match="does not exist"):
         list(iter_frames(tmp_path / "nothing.mcap"))

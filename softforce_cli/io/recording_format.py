@@ -187,7 +187,7 @@ def decode_camera_info(data: bytes, what: str = "camera_info") -> CameraIntrinsi
     except DecodeError as error:
         raise RecordingError(f"{what} is not a valid foxglove.CameraCalibration") from error
     K = list(calibration.K)
-    if len(K) != 9 or K[0] <= 0.0 or K[4] <= 0.0:
+    if len(K) != 9 or not np.all(np.isfinite(K)) or K[0] <= 0.0 or K[4] <= 0.0:
         raise RecordingError(
             f"{what} has no usable camera matrix K (got {K}); the camera is uncalibrated"
         )
