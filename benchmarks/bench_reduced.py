@@ -47,6 +47,7 @@ from benchmarks.timing import BenchRow, median_time  # noqa: E402
 from softforce_cli.calibration.calibrate import calibrate  # noqa: E402
 from softforce_cli.calibration.synthetic import observed_markers, paper_transform  # noqa: E402
 from softforce_cli.errors import SolverError  # noqa: E402
+from softforce_cli.estimation.sensing import tangent_basis  # noqa: E402
 from softforce_cli.fem.attachment import Attachment  # noqa: E402
 from softforce_cli.fem.compliance import (  # noqa: E402
     compliance,
@@ -618,11 +619,6 @@ SENSITIVITY_CABLE_MM = 0.1
 SENSITIVITY_POINT_MM = 0.5
 
 
-def _tangents(direction: np.ndarray) -> np.ndarray:
-    """(2, 3) orthonormal directions perpendicular to `direction` (3,)."""
-    return np.linalg.svd(np.asarray(direction, float)[None])[2][1:]
-
-
 def sensitivity_study() -> None:
     """How far the full model's own W moves at the loaded cases when an input moves by what
     sensing cannot pin down (the force by 5%, one cable by 0.1 mm, the contact point by 0.5
@@ -652,6 +648,7 @@ def sensitivity_study() -> None:
             return errors(answer, full.fe_model, changed, held)
 
         steps = np.eye(len(case.inputs.values))
+        along = tangent_basis(case.forces_n[:1] / np.linalg.norm(case.forces_n[0]))[0]
         rows = {
             "reduced model (ECSW 1e-2)": errors(answer, reduced.fe_model, case, held),
             f"full, force {100 * SENSITIVITY_FORCE:.0f}% less": moved(dataclasses.replace(
@@ -663,7 +660,7 @@ def sensitivity_study() -> None:
             f"full, the point {SENSITIVITY_POINT_MM} mm along the surface (largest of 4)": np.max(
                 [moved(dataclasses.replace(case, points_mm=case.points_mm
                                            + SENSITIVITY_POINT_MM * sign * tangent))
-                 for tangent in _tangents(case.forces_n[0]) for sign in (1, -1)], axis=0),
+                 for tangent in along for sign in (1, -1)], axis=0),
         }
         for change, values in rows.items():
             print(f"| {name} | {change} | "
