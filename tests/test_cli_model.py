@@ -90,6 +90,11 @@ def test_solve_rejects_bad_input(robot_dir, tmp_path):
         "2 actuation values for 4 cables")
     assert_one_line_error(
         softforce("model", "solve", robot, "--actuation", "5,x,0,0", "-o", tmp_path / "a.vtu"),
-        "expected comma-separated numbers")
+        "expected comma-separated finite numbers")
+    # a NaN reached the solver's SVD as a traceback, an infinity Newton's 60 iterations
+    for value in ("nan", "inf"):
+        assert_one_line_error(
+            softforce("model", "solve", robot, "--actuation", f"5,{value},0,0", "-o",
+                      tmp_path / "a.vtu"), "expected comma-separated finite numbers")
     assert_one_line_error(softforce("model", "show", tmp_path / "none.toml"), "not found")
     assert not (tmp_path / "a.vtu").exists()

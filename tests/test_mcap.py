@@ -419,6 +419,17 @@ def test_camera_info_without_a_usable_finite_matrix_is_refused(index, value):
         fmt.decode_camera_info(info.SerializeToString())
 
 
+@pytest.mark.parametrize("value", [float("nan"), float("inf")])
+def test_actuation_and_markers_that_are_not_finite_are_refused(value):
+    # a NaN input reached the FE solve, which skipped the frame as a solver failure
+    actuation = Actuation(("north", "west"), "displacement", np.array([3.0, value]))
+    with pytest.raises(RecordingError, match="not a finite number"):
+        fmt.decode_actuation(fmt.encode_actuation(actuation), "the frame")
+    markers = Markers(("apex", "elbow"), np.array([[0.0, 0.0, 500.0], [value, 0.0, 500.0]]))
+    with pytest.raises(RecordingError, match=r"marker\(s\) elbow at a position that is not"):
+        fmt.decode_markers(fmt.encode_markers(markers), "the frame")
+
+
 def test_missing_and_non_mcap_files(tmp_path):
     with pytest.raises(RecordingError, match="does not exist"):
         list(iter_frames(tmp_path / "nothing.mcap"))

@@ -457,6 +457,10 @@ def test_cli_reduce_resumes_from_snapshots_and_writes_a_usable_file(beam, tmp_pa
     no_modes = softforce("model", "reduce", toml, "-o", tmp_path / "y.rom.npz", "--max-modes",
                          "0")
     assert_one_line_error(no_modes, "--max-modes 0 must be at least 1")
+    for force in ("nan", "0", "-1"):  # NaN was trained on (for minutes) before
+        no_force = softforce("model", "reduce", toml, "-o", tmp_path / "y.rom.npz",
+                             "--max-force", force)
+        assert_one_line_error(no_force, "must be a positive number of newtons")
     assert not (tmp_path / "y.rom.npz").exists()
     loose = softforce("model", "reduce", toml, "-o", tmp_path / "z.rom.npz",
                       "--ecsw-tolerance", "1.5")

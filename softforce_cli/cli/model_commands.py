@@ -20,10 +20,13 @@ RobotArgument = Annotated[Path, typer.Argument(help="Robot model file (TOML).")]
 def parse_actuation(text: str) -> np.ndarray:
     """'5,5,0,0' -> array; one value per cable, in the cable's control units."""
     try:
-        return np.array([float(v) for v in text.split(",") if v.strip()], dtype=float)
+        values = np.array([float(v) for v in text.split(",") if v.strip()], dtype=float)
     except ValueError:
-        raise ModelError(f"--actuation {text!r}: expected comma-separated numbers, e.g. 5,5,0,0"
-                         ) from None
+        values = np.array([np.nan])
+    if not np.all(np.isfinite(values)):
+        raise ModelError(f"--actuation {text!r}: expected comma-separated finite numbers, "
+                         "e.g. 5,5,0,0")
+    return values
 
 
 @app.command("init")
@@ -178,6 +181,8 @@ def reduce(
         raise ModelError(f"--box-fraction {box_fraction:g} must be in (0, 1]")
     if max_modes < 1:
         raise ModelError(f"--max-modes {max_modes} must be at least 1")
+    if not 0.0 < max_force < np.inf:
+        raise ModelError(f"--max-force {max_force:g} must be a positive number of newtons")
     settings = TrainingSettings(max_force_n=max_force, max_modes=max_modes,
                                 box_fraction=box_fraction)
     if ecsw_tolerance is not None:

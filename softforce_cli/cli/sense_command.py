@@ -109,17 +109,23 @@ def _run(prepared, stop_requested):
     progress = Progress(*columns, console=stderr)
     task = progress.add_task("sensing", total=prepared.frame_count, rate="")
     # the progress bar and, under it, the contacts of the frame just sensed
-    with Live(Group(progress, _contacts_table(())), console=stderr,
-              refresh_per_second=10) as live:
+    try:
+        with Live(Group(progress, _contacts_table(())), console=stderr,
+                  refresh_per_second=10) as live:
 
-        def on_frame(estimate, summary) -> None:
-            progress.update(task, completed=summary.frames,
-                            rate=f"{summary.frames_per_s:.1f} fps")
-            live.update(Group(progress, _contacts_table(estimate.contacts)))
+            def on_frame(estimate, summary) -> None:
+                progress.update(task, completed=summary.frames,
+                                rate=f"{summary.frames_per_s:.1f} fps")
+                live.update(Group(progress, _contacts_table(estimate.contacts)))
 
-        return run_sensing(prepared.frames, prepared.sensor, prepared.output, prepared.header,
-                           force=prepared.force, on_frame=on_frame,
-                           stop_requested=stop_requested)
+            return run_sensing(prepared.frames, prepared.sensor, prepared.output,
+                               prepared.header, force=prepared.force, on_frame=on_frame,
+                               stop_requested=stop_requested)
+    finally:
+        if not stderr.is_interactive:
+            # off a terminal Live ends its last render without a newline (rich's Progress
+            # adds one itself): the next line would join the table's last
+            stderr.line()
 
 
 def _contacts_table(contacts) -> Table:

@@ -227,6 +227,8 @@ def decode_actuation(data: bytes, what: str = "actuation message") -> Actuation:
         raise RecordingError(f"{what} has control '{control}'; expected one of {CONTROL_MODES}")
     if len(names) != len(values):
         raise RecordingError(f"{what} has {len(names)} names but {len(values)} values")
+    if not np.all(np.isfinite(values)):
+        raise RecordingError(f"{what} has a value that is not a finite number: {values.tolist()}")
     return Actuation(names=names, control=control, values=values)
 
 
@@ -241,4 +243,8 @@ def decode_markers(data: bytes, what: str = "markers message") -> Markers:
         ) from error
     if len(ids) != len(positions):
         raise RecordingError(f"{what} has {len(ids)} ids but {len(positions)} positions")
+    if not np.all(np.isfinite(positions)):
+        unseen = [i for i, p in zip(ids, positions, strict=True) if not np.all(np.isfinite(p))]
+        raise RecordingError(f"{what} has marker(s) {', '.join(unseen)} at a position that is not "
+                             "finite; a marker not seen in a frame is left out of its message")
     return Markers(ids=ids, positions_mm=positions)
