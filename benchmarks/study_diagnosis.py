@@ -12,7 +12,7 @@ a rerun continues where the last stopped. `--table` prints the markdown table of
 
     .venv/bin/python benchmarks/study_diagnosis.py [--cases NAME,...] [--seeds 3]
         [--first-seed 1] [--redo] [--recordings-only] [--table] [--markers] [--self]
-        [--converged]
+        [--converged [--finer-estimator]]
 
 --markers: the recordings publish the robot's nine markers too (/markers, 0.5 mm noise), as
 a setup calibrated from markers would; their cases are kept as NAME+markers. The sensor's
@@ -26,6 +26,11 @@ what goes wrong there is the method's, not the mesh's.
 P2-P0 element on the 4.8 mm mesh (sample_data/diamond_fine, docs/locking.md's reference,
 sagging 14.55 mm under gravity where the 6.5 mm P2 body sags 13.18 and the coarse P2 model
 12.84, corotational), cases NAME+converged.
+
+--finer-estimator (with --converged only): diagnose with a copy of the 6.5 mm mesh's robot
+file (sample_data/diamond_truth, P2, 8,674 tets) instead of the coarse one, cases
+NAME+converged+finer: how much of what the coarse estimator misses is its mesh's. Without
+--converged the truth would be on the estimator's own mesh, so the option is refused.
 """
 
 from __future__ import annotations
@@ -122,12 +127,16 @@ SELF = "+self"
 # A case whose truth is the converged body (P2-P0 on the 4.8 mm mesh) is named with this
 # suffix.
 CONVERGED = "+converged"
+# A case diagnosed with the 6.5 mm mesh's robot file (TRUTH_ROBOT) instead of COARSE is
+# named with this suffix (after CONVERGED: its truth must be on another mesh).
+FINER = "+finer"
 MARKERS_TOML = "[markers]\npublish = true\nsigma_mm = 0.5\n\n"
 
 
 def plain_case(case: str) -> str:
     """The library's case a study case is a variant of (without its suffixes)."""
-    return case.removesuffix(CONVERGED).removesuffix(SELF).removesuffix(MARKED)
+    return (case.removesuffix(FINER).removesuffix(CONVERGED).removesuffix(SELF)
+            .removesuffix(MARKED))
 
 
 def coarse_variant(name: str, old: str, new: str, source: Path = COARSE) -> Path:
@@ -220,14 +229,16 @@ def recorded_case(case: str) -> str:
     """The case whose recording a case reads: a case with its own robot file has the clean
     case's truth."""
     plain = plain_case(case)
-    return ("clean" if plain in LAW_OF_ROBOT else plain) + case[len(plain):]
+    return ("clean" if plain in LAW_OF_ROBOT else plain) + case[len(plain):].removesuffix(FINER)
 
 
 def robot_file(case: str) -> Path:
-    """The robot file a case is diagnosed with: a copy of COARSE with the truth's law, or
-    with another law for the material cases."""
+    """The robot file a case is diagnosed with: a copy of COARSE (of TRUTH_ROBOT for a
+    FINER case) with the truth's law, or with another law for the material cases."""
     law = LAW_OF_ROBOT.get(plain_case(case), TRUTH_LAW)
-    return coarse_variant(f"diamond_{law}.toml", COARSE_LAW, f'[material]\nlaw = "{law}"')
+    finer = case.endswith(FINER)
+    return coarse_variant(f"diamond_{law}{'_6.5mm' if finer else ''}.toml", COARSE_LAW,
+                          f'[material]\nlaw = "{law}"', TRUTH_ROBOT if finer else COARSE)
 
 
 def run_case(case: str, seed: int) -> dict:
@@ -310,7 +321,13 @@ def main() -> None:
                         help="the truth is the estimator's own model (cases NAME+self)")
     parser.add_argument("--converged", action="store_true",
                         help="the truth is P2-P0 on the 4.8 mm mesh (cases NAME+converged)")
+    parser.add_argument("--finer-estimator", action="store_true",
+                        help="with --converged: diagnose with the 6.5 mm mesh's robot file "
+                        "(cases NAME+converged+finer)")
     args = parser.parse_args()
+    if args.finer_estimator and not args.converged:
+        parser.error("--finer-estimator needs --converged: the default truth is on the "
+                     "6.5 mm mesh itself")
     FOLDER.mkdir(parents=True, exist_ok=True)
     rows = read_results()
     if args.table:
@@ -325,6 +342,8 @@ def main() -> None:
         cases = [c + SELF for c in cases]
     if args.converged:
         cases = [c + CONVERGED for c in cases]
+    if args.finer_estimator:
+        cases = [c + FINER for c in cases]
     for seed in range(args.first_seed, args.seeds + 1):
         for case in cases:
             if args.recordings_only:
