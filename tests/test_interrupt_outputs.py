@@ -7,6 +7,7 @@ A run that fails part-way must leave either nothing or a finished, readable file
 
 from __future__ import annotations
 
+import json
 import warnings
 from pathlib import Path
 
@@ -110,15 +111,23 @@ def test_failure_before_the_first_frame_writes_nothing(tmp_path, monkeypatch):
 
 def test_failure_mid_run_leaves_a_finished_recording(tmp_path, monkeypatch):
     """A solver failure at frame 2: the two frames done are a finished, indexed MCAP (the
-    writer's promise), the error is one line, and no temporary file is left."""
+    writer's promise) with their truth beside it (it had been left out: a recording without
+    its truth, or, under --force, with an earlier run's), the error is one line that says
+    so, and no temporary file is left."""
     from softforce_cli.sim import simulate
 
     monkeypatch.setattr(simulate, "solve_frame", failing_solver(2))
     output = tmp_path / "sim.mcap"
-    outcome = run_cli("simulate", scenario_file(tmp_path), "-o", output)
+    output.write_bytes(b"an earlier run")
+    truth = tmp_path / "sim.truth.json"
+    truth.write_text('{"frames": "of an earlier run"}')
+    outcome = run_cli("simulate", scenario_file(tmp_path), "-o", output, "--force")
     assert classify(outcome) == "error" and "injected by the test" in outcome.stderr
+    assert "the 2 frame(s) before it are kept in" in outcome.stderr
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert read_summary(output).indexed
         assert len(list(iter_frames(output))) == 2
+    frames = json.loads(truth.read_text())["frames"]
+    assert [frame["actuation"]["values"] for frame in frames] == [[0, 0, 0, 0], [1, 0, 0, 0]]
     assert not list(tmp_path.glob(".*.tmp"))

@@ -26,7 +26,7 @@ import numpy as np
 from softforce_cli import __version__
 from softforce_cli.camera.frame import Actuation, Markers, RgbdFrame
 from softforce_cli.camera.intrinsics import CameraIntrinsics
-from softforce_cli.errors import ScenarioError
+from softforce_cli.errors import ScenarioError, SoftforceError
 from softforce_cli.io.atomic import atomic_write_text, check_writable
 from softforce_cli.io.mcap_writer import write_recording
 from softforce_cli.model.effect_physics import fe_model_with_effects
@@ -182,6 +182,13 @@ def run_simulation(
     the previous one, as always.
     """
     truth_frames: list[dict] = []
+    written = [0]
+
+    def counted(frames: Iterator[RgbdFrame]) -> Iterator[RgbdFrame]:
+        for frame in frames:
+            yield frame
+            written[0] += 1  # the writer asks for the next frame once this one is written
+
     frames = _frames(
         simulation.scenario,
         simulation.robot,
@@ -191,26 +198,39 @@ def run_simulation(
         progress,
         states,
     )
-    result = write_recording(
-        frames,
-        simulation.recording,
-        force=simulation.force,
-        stop_on_interrupt=True,
-        metadata={"scenario": simulation.scenario.source.name},
-    )
+    try:
+        result = write_recording(
+            counted(frames),
+            simulation.recording,
+            force=simulation.force,
+            stop_on_interrupt=True,
+            metadata={"scenario": simulation.scenario.source.name},
+        )
+    except SoftforceError as error:
+        # write_recording kept the frames written before the error: their truth goes with
+        # them (a recording without it, or with an earlier run's, would mislead)
+        if written[0]:
+            _write_truth(simulation, truth_frames[: written[0]])
+            error.args = (f"{error} (the {written[0]} frame(s) before it are kept in "
+                          f"{simulation.recording}, their truth in {simulation.truth})",)
+        raise
     if result.interrupted and result.frames == 0:
         raise KeyboardInterrupt  # stopped before the first frame: no recording, so no truth
+    _write_truth(simulation, truth_frames[: result.frames])
+    return SimulationResult(
+        simulation.recording, simulation.truth, result.frames, result.interrupted
+    )
+
+
+def _write_truth(simulation: Simulation, truth_frames: list[dict]) -> None:
     document = _truth_document(
         simulation.scenario,
         simulation.robot,
         simulation.intrinsics,
         simulation.world_from_cam,
-        truth_frames[: result.frames],
+        truth_frames,
     )
     atomic_write_text(simulation.truth, json.dumps(document, indent=1), force=simulation.force)
-    return SimulationResult(
-        simulation.recording, simulation.truth, result.frames, result.interrupted
-    )
 
 
 def simulate(
