@@ -58,3 +58,28 @@ def test_signal_during_sense_keeps_whole_frames(tmp_path, long_recording, sig):
     assert document["summary"]["frames"] == len(rows)
     contacts = list(csv.reader((out / "contacts.csv").read_text().splitlines()))[1:]
     assert all(int(r[0]) <= int(rows[-1][0]) for r in contacts)
+
+
+def test_an_unreadable_frame_ends_sense_with_the_frames_before_it(tmp_path, long_recording):
+    """A frame the reader refuses (an actuation value that is NaN) ends the run with one
+    error line that says where the frames before it are; sense.json's summary keeps that
+    line, so the files do not read as the whole recording (they had said nothing)."""
+    _, calibration = long_recording
+    frames = list(iter_frames(PROBES))
+    broken = frames[2].actuation
+    frames[2] = dataclasses.replace(frames[2], actuation=dataclasses.replace(
+        broken, values=broken.values * float("nan")))
+    recording = tmp_path / "nan.mcap"
+    write_recording(frames, recording)
+    out = tmp_path / "out"
+    result = subprocess.run(
+        [sys.executable, "-m", "softforce_cli", "sense", str(recording), "--robot",
+         str(SAMPLE_ROBOT), "--calibration", str(calibration), "-o", str(out)],
+        capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("error:") and "not a finite number" in last
+    assert f"the 2 frame(s) processed before it are in {out}" in last
+    summary = json.loads((out / "sense.json").read_text())["summary"]
+    assert summary["frames"] == 2 and "not a finite number" in summary["error"]
+    assert len((out / "frames.csv").read_text().splitlines()) == 3

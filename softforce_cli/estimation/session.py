@@ -16,6 +16,7 @@ from typing import Any
 from threadpoolctl import threadpool_limits
 
 from softforce_cli.camera.frame import RgbdFrame
+from softforce_cli.errors import SoftforceError
 from softforce_cli.estimation.lookahead import observed_frames
 from softforce_cli.estimation.results import FrameEstimate
 from softforce_cli.estimation.sensing import ForceSensor
@@ -99,6 +100,13 @@ def run_sensing(
                     break
         except KeyboardInterrupt:
             summary.interrupted = True
+        except SoftforceError as error:
+            # the files keep the frames before it and say why they end there
+            summary.error = " ".join(str(error).split())
+            if summary.frames:
+                error.args = (f"{error} (the {summary.frames} frame(s) processed before it "
+                              f"are in {writer.folder})",)
+            raise
         finally:
             stream.close()  # stops the look-ahead's worker
             summary.wall_s = time.perf_counter() - began

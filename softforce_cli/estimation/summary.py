@@ -32,6 +32,8 @@ class SenseSummary:
     last_time_s: float | None = None
     wall_s: float = 0.0
     interrupted: bool = False
+    # the error line that ended the run before the recording's end (None: it ended there)
+    error: str | None = None
     # wall time between one frame's results and the next's (ms): the rate frames come out at,
     # which with the look-ahead (estimation.lookahead) is less than a frame's stage times
     interval_ms: list[float] = field(default_factory=list)
@@ -78,6 +80,7 @@ class SenseSummary:
             "ok": self.ok,
             "skipped": dict(sorted(self.skipped.items())),
             "interrupted": self.interrupted,
+            "error": self.error,
             "contacts": [
                 {"contact": index, "frames": span.frames, "force_min_n": round(span.min_n, 6),
                  "force_max_n": round(span.max_n, 6),
