@@ -152,6 +152,27 @@ def test_csv_and_json_reexport_keep_the_chosen_columns(sense_out, tmp_path):
                       for r in _csv_rows(sense_out / "frames.csv")]
 
 
+@pytest.mark.parametrize(("ending", "note"), [
+    ({"interrupted": True}, "the run was interrupted after 4 frames"),
+    ({"error": "error line of the reader"},
+     "the run ended on an error after 4 frames, before the recording's end: error line"),
+])
+def test_a_run_that_ended_early_says_so(sense_out, tmp_path, ending, note):
+    """sense.json's summary says the run stopped before the recording's end (Ctrl-C, or a
+    frame the reader refused): the report notes it, in the terminal and on the page."""
+    early = tmp_path / "early"
+    shutil.copytree(sense_out, early, ignore=shutil.ignore_patterns("report"))
+    document = json.loads((early / "sense.json").read_text())
+    document["summary"].update(ending)
+    (early / "sense.json").write_text(json.dumps(document))
+    assert document["summary"]["frames"] == 4
+    run = load_run(early).sense
+    assert [n for n in run.notes if n.startswith(note)]
+    build_report(load_run(early), tmp_path / "report")
+    assert note.split(",")[0] in (tmp_path / "report" / "report.html").read_text()
+    assert not load_run(sense_out).sense.notes  # a whole run has none
+
+
 def test_an_interrupted_run_is_reported_as_far_as_it_went(sense_out, tmp_path):
     """frames.csv cut mid-row, contacts.csv ahead of it, sense.json cut: the whole rows are
     reported and each problem is noted."""

@@ -145,6 +145,12 @@ def load_sense(folder: Path) -> SenseRun:
     tensions = {int(f["frame"]): np.asarray(f.get("cable_tensions_n", []), dtype=float)
                 for f in document.get("frames", []) if isinstance(f, dict) and "frame" in f}
     summary = document.get("summary") if isinstance(document.get("summary"), dict) else {}
+    if summary.get("error"):
+        notes.append(f"the run ended on an error after {summary.get('frames')} frames, before "
+                     f"the recording's end: {summary['error']}")
+    elif summary.get("interrupted"):
+        notes.append(f"the run was interrupted after {summary.get('frames')} frames, before "
+                     "the recording's end")
     return SenseRun(folder, header, frames, contacts, tensions, summary, tuple(notes))
 
 
