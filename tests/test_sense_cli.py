@@ -89,6 +89,9 @@ def test_sense_refuses_to_overwrite_without_force(probes_run):
     (["--contact-point", "0,0", "--direction", "0,0,-1"], "3 comma-separated numbers"),
     (["--contact-point", "0,0,110", "--direction", "0,0,0"], "zero"),
     (["--force-model", "spring"], "force_model"),
+    # a point in metres (or another frame) had been attached by extrapolating an element
+    (["--contact-point", "0,0,1e4", "--direction", "0,0,-1"], "outside the robot, 9874 mm"),
+    (["--robot-rgb", "300,0,0"], "each of R, G, B is 0-255"),
 ])
 def test_bad_options_fail_with_one_line(probes_run, tmp_path, args, fragment):
     _, _, calibration = probes_run

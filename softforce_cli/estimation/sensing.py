@@ -56,6 +56,10 @@ AXES = np.eye(3)
 # moved, its node lies this much further from the contact's centre than the nearest one
 # (ForceSensor._contact_nodes): about half the coarse Diamond's surface node spacing.
 RELOCATE_MM = 4.0
+# A known contact's point outside the body must lie within this of a surface node at rest
+# (mm): a point on a face of the coarse Diamond is within about 6 mm of one; one further
+# out is in other units or frame, and its attachment would extrapolate an element.
+KNOWN_CONTACT_REACH_MM = 10.0
 
 
 @dataclass(frozen=True)
@@ -146,6 +150,13 @@ class ForceSensor:
         if known_contact is not None:
             point = np.asarray(known_contact.rest_point_mm, dtype=float)[None]
             self.known_points = robot.attach(point)
+            surface = robot.mesh.nodes_mm[robot.mesh.surface_nodes]
+            gap = float(np.linalg.norm(surface - point, axis=1).min())
+            if not self.known_points.inside.all() and gap > KNOWN_CONTACT_REACH_MM:
+                raise SensingError(
+                    f"the known contact's point {np.round(point[0], 2).tolist()} mm is "
+                    f"outside the robot, {gap:.0f} mm from its surface at rest; give a point on "
+                    "the robot, in the robot frame and in mm")
 
     def restart(self) -> None:
         """Move the FE configuration to the unloaded equilibrium at the current actuation

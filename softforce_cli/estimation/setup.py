@@ -89,6 +89,8 @@ def prepare_sensing(inputs: SenseInputs, live: bool = False) -> PreparedSensing:
     if material is not None:
         robot = robot_with_material(robot, material)
     rgb = None if inputs.robot_rgb is None else parse_vector(inputs.robot_rgb, "--robot-rgb")
+    if rgb is not None and not np.all((rgb >= 0) & (rgb <= 255)):
+        raise SensingError(f"--robot-rgb {inputs.robot_rgb!r}: each of R, G, B is 0-255")
     resources = contextlib.ExitStack()
     try:
         frames, count, source = _frame_source(inputs, live, resources)
