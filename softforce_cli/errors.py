@@ -37,5 +37,9 @@ class OutputExistsError(SoftforceError):
     """An output would overwrite an existing file without --force."""
 
 
+class OutputError(SoftforceError):
+    """An output cannot be written where asked (a folder that cannot be made or written in)."""
+
+
 class SensingError(SoftforceError):
     """Force sensing cannot run on these inputs (no robot in view, no actuation, ...)."""

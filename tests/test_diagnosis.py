@@ -1341,3 +1341,14 @@ def test_the_refit_starts_a_plate_from_its_screened_contact(tmp_path, monkeypatc
     np.testing.assert_allclose(predicted.positions_mm[0], tight.positions_mm[:n], atol=1e-3)
     assert np.abs(tight.positions_mm - solution.positions_mm).max() > 1.5
     assert len(iterations) == 1 and iterations[0] <= 3 and nominal_start.iterations >= 10
+
+
+def test_a_cache_that_cannot_be_written_warns_and_the_run_goes_on(tmp_path):
+    """diagnose's cache under a path that cannot be a folder: a warning, not an error (it
+    had raised the OSError as a traceback); reading it finds nothing."""
+    blocked = tmp_path / "a_file"
+    blocked.write_text("not a folder")
+    cache = SolveCache(blocked / "cache")
+    with pytest.warns(UserWarning, match="cache is not kept .*cannot write"):
+        cache.store("key", positions=np.zeros(3))
+    assert cache.load("key") is None

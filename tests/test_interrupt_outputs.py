@@ -72,6 +72,42 @@ def test_existing_output_is_refused_without_force(tmp_path, command):
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing new, no .tmp
 
 
+SAMPLES = ROOT / "sample_data" / "recordings"
+# outputs that are folders, or files written after the work (a blocked folder must be found
+# before it: diagnose checks it before its vision stage)
+FOLDER_COMMANDS = {
+    "sense": ["sense", SAMPLES / "probes.mcap", "--robot", ROBOT, "--calibration",
+              "{calibration}", "--frames", "0:1", "-o", "{out}"],
+    "diagnose": ["diagnose", SAMPLES / "diagnose_slack.mcap", "--robot", ROBOT,
+                 "--calibration", "{calibration}", "-o", "{out}"],
+}
+
+
+# record: its input is a RealSense file, refused before any output is made
+@pytest.mark.parametrize("command", [*(c for c in COMMANDS if c != "record"), *FOLDER_COMMANDS])
+def test_an_output_that_cannot_be_written_is_one_line(tmp_path, command):
+    """An output under a path that cannot be a folder (a file stands there, as a read-only
+    or virtual file system would refuse it): one error line naming it, no traceback (the
+    writers' OSError had escaped as one)."""
+    blocked = tmp_path / "a_file"
+    blocked.write_bytes(PRECIOUS)
+    calibration = tmp_path / "pose.json"
+    calibration.write_text('{"rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], '
+                           '"translation_mm": [0, 0, 0]}')
+    if command in COMMANDS:
+        arguments, name = COMMANDS[command]
+    else:
+        arguments, name = FOLDER_COMMANDS[command], "out"
+    values = {"out": blocked / name, "dir": blocked, "scenario": scenario_file(tmp_path),
+              "markers": markers_file(tmp_path), "calibration": calibration}
+    args = [str(a).format(**values) if isinstance(a, str) else a for a in arguments]
+    outcome = run_cli(*args)
+    assert classify(outcome) == "error"
+    line = " ".join(outcome.stderr.split())
+    assert "error: cannot write" in line and str(blocked) in line
+    assert blocked.read_bytes() == PRECIOUS
+
+
 def test_force_replaces_the_output(tmp_path):
     existing = tmp_path / "deformed.vtu"
     existing.write_bytes(PRECIOUS)

@@ -69,10 +69,11 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 
 
 def main() -> None:
-    """Entry point: run the app; a SoftforceError becomes one red line and exit status 1.
+    """Entry point: run the app; a SoftforceError (or an OSError: the machine's, not the
+    input's) becomes one red line and exit status 1.
 
     Usage errors are typer's (a usage line, exit status 2). Set SOFTFORCE_DEBUG=1 to see the
-    traceback of a SoftforceError instead. SIGTERM stops a run like Ctrl-C (see interrupt.py)
+    traceback of such an error instead. SIGTERM stops a run like Ctrl-C (see interrupt.py)
     and the exit status is 128 + the signal: 130 for Ctrl-C, 143 for SIGTERM.
     """
     install_signal_handlers()
@@ -84,7 +85,9 @@ def main() -> None:
     try:
         _register_commands()
         app()
-    except SoftforceError as error:
+    except (SoftforceError, OSError) as error:
+        # an OSError that no reader or writer turned into a SoftforceError (a disk that fills
+        # up mid-run, a file vanishing under a reader) is the machine's, not a bug: one line too
         if os.environ.get("SOFTFORCE_DEBUG"):
             raise
         message = " ".join(str(error).split())  # one line, whatever the message holds

@@ -15,7 +15,7 @@ from softforce_cli.diagnosis.pipeline import Diagnosis, diagnose_observations
 from softforce_cli.diagnosis.report import diagnosis_document, fitted_robot_toml
 from softforce_cli.diagnosis.solves import SolveCache
 from softforce_cli.estimation.session import FrameRange
-from softforce_cli.io.atomic import atomic_write_text, check_writable
+from softforce_cli.io.atomic import atomic_write_text, check_writable, writable_folder
 from softforce_cli.model.robot import load_robot, robot_with_effects
 
 OUTPUTS = ("diagnosis.json", "robot.fitted.toml", "residual_map.png", "signature.png")
@@ -66,6 +66,8 @@ def run_diagnosis(inputs: DiagnoseInputs, stage: Stage,
         raise DiagnosisError(f"{inputs.calibration} was made for robot "
                              f"{calibration.robot_name!r}, not {robot.name!r} ({inputs.robot});"
                              " calibrate this robot first")
+    # a folder that cannot be written is found before the minutes of work, not after them
+    writable_folder(inputs.output)
     observations = observe_recordings(
         list(inputs.recordings), robot, calibration.robot_from_camera,
         (frame_range.start, frame_range.stop),
@@ -91,8 +93,7 @@ def run_diagnosis(inputs: DiagnoseInputs, stage: Stage,
 
 def write_outputs(inputs: DiagnoseInputs, diagnosis: Diagnosis, stage: Stage) -> None:
     """diagnosis.json always; the fitted robot and the figures once there is a verdict."""
-    output = inputs.output
-    output.mkdir(parents=True, exist_ok=True)
+    output = writable_folder(inputs.output)
     document = diagnosis_document(diagnosis, {
         "recordings": [str(p) for p in inputs.recordings], "robot": str(inputs.robot),
         "calibration": str(inputs.calibration), "frames": inputs.frames})

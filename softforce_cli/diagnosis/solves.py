@@ -19,6 +19,7 @@ same states, a rerun with --force) solves nothing again.
 from __future__ import annotations
 
 import hashlib
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from io import BytesIO
@@ -27,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from softforce_cli.diagnosis.sensitivities import ColumnSet, state_columns
-from softforce_cli.errors import SolverError
+from softforce_cli.errors import OutputError, SolverError
 from softforce_cli.fem.cables import CableInputs
 from softforce_cli.fem.compliance import linearize
 from softforce_cli.fem.model import FEModel
@@ -99,10 +100,13 @@ class SolveCache:
     def store(self, key: str, **arrays: np.ndarray) -> None:
         if self.folder is None:
             return
-        self.folder.mkdir(parents=True, exist_ok=True)
         buffer = BytesIO()
         np.savez(buffer, **arrays)
-        atomic_write_bytes(self.folder / f"{key}.npz", buffer.getvalue(), force=True)
+        try:
+            atomic_write_bytes(self.folder / f"{key}.npz", buffer.getvalue(), force=True)
+        except OutputError as error:  # a cache that cannot be written costs time, not the run
+            warnings.warn(f"diagnose's cache is not kept ({error}); a later run solves its "
+                          "states again", stacklevel=2)
 
     def solve(self, model: FEModel, inputs: CableInputs, start_mm: np.ndarray | None,
               solved: list[tuple[np.ndarray, np.ndarray]] = ()) -> tuple[np.ndarray, np.ndarray]:

@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
 
-from softforce_cli.errors import OutputExistsError
+from softforce_cli.errors import OutputError, OutputExistsError
 
 
 def new_file_mode() -> int:
@@ -25,6 +25,28 @@ def check_writable(path: Path, force: bool) -> None:
         raise OutputExistsError(f"{path} already exists; pass --force to overwrite it")
 
 
+def writable_folder(folder: Path) -> Path:
+    """`folder`, made with its parents when missing; OutputError (one line) when it cannot
+    be (a read-only or virtual file system, a file in the way)."""
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise OutputError(f"cannot write in {folder}: {error.strerror or error}") from error
+    return folder
+
+
+def temporary_beside(path: Path, prefix: str, suffix: str) -> tuple[int, Path]:
+    """(descriptor, path) of a new temporary file in `path`'s folder (made when missing), or
+    OutputError naming `path` when no file can be made there."""
+    writable_folder(path.parent)
+    try:
+        fd, name = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=path.parent)
+    except OSError as error:
+        raise OutputError(f"cannot write {path}: {error.strerror or error}") from error
+    return fd, Path(name)
+
+
 @contextlib.contextmanager
 def atomic_open(path: Path, mode: str = "w", force: bool = False) -> Iterator[IO]:
     """Open a temporary file next to `path`; on success rename it over `path`, else delete it.
@@ -33,9 +55,7 @@ def atomic_open(path: Path, mode: str = "w", force: bool = False) -> Iterator[IO
     """
     path = Path(path)
     check_writable(path, force)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    tmp = Path(tmp_name)
+    fd, tmp = temporary_beside(path, f".{path.name}.", ".tmp")
     try:
         with os.fdopen(fd, mode) as handle:
             yield handle
@@ -54,12 +74,8 @@ def atomic_path(path: Path, force: bool = False) -> Iterator[Path]:
     renamed over `path` on success, deleted on failure. Keeps the suffix for format sniffing."""
     path = Path(path)
     check_writable(path, force)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(
-        prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent
-    )
+    fd, tmp = temporary_beside(path, f".{path.stem}.", f".tmp{path.suffix}")
     os.close(fd)
-    tmp = Path(tmp_name)
     try:
         yield tmp
         os.chmod(tmp, new_file_mode())

@@ -15,7 +15,6 @@ import contextlib
 import json
 import os
 import signal
-import tempfile
 import threading
 from array import array
 from collections.abc import Iterable, Iterator, Mapping
@@ -39,7 +38,7 @@ from softforce_cli import __version__
 from softforce_cli.camera.frame import RgbdFrame
 from softforce_cli.errors import RecordingError
 from softforce_cli.io import recording_format as fmt
-from softforce_cli.io.atomic import check_writable, new_file_mode
+from softforce_cli.io.atomic import check_writable, new_file_mode, temporary_beside
 
 # mcap's writer compresses each chunk with zstandard.compress (level 3). On noisy RGB-D frames
 # level 1 is both 2.4x faster and 10% smaller (measured: 5.0 vs 12.1 ms, 493 vs 550 kB for a
@@ -123,11 +122,7 @@ class RecordingWriter:
         self._last_time_ns: int | None = None
         self._closed = False
         self._metadata = {"softforce_version": __version__, **_checked_metadata(metadata)}
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp_name = tempfile.mkstemp(
-            prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent
-        )
-        self._tmp = Path(tmp_name)
+        fd, self._tmp = temporary_beside(self.path, f".{self.path.name}.", ".tmp")
         self._stream = os.fdopen(fd, "wb")
         try:
             self._writer = McapWriter(self._stream, compression=CompressionType.ZSTD)

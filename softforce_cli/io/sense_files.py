@@ -15,8 +15,9 @@ import math
 from pathlib import Path
 from typing import IO, Any
 
-from softforce_cli.errors import OutputExistsError
+from softforce_cli.errors import OutputError, OutputExistsError
 from softforce_cli.estimation.results import STAGES, FrameEstimate
+from softforce_cli.io.atomic import writable_folder
 
 CONTACTS_HEADER = ("frame", "time_s", "contact", "feature", "x_mm", "y_mm", "z_mm", "force_n",
                    "fx_n", "fy_n", "fz_n", "residual_mm")
@@ -73,11 +74,13 @@ class SenseWriter:
     def __init__(self, folder: Path, header: dict[str, Any], force: bool = False) -> None:
         folder = Path(folder)
         check_output_folder(folder, force)
-        folder.mkdir(parents=True, exist_ok=True)
-        self.folder = folder
-        self._contacts_file = open(folder / "contacts.csv", "w", newline="")  # noqa: SIM115
-        self._frames_file = open(folder / "frames.csv", "w", newline="")  # noqa: SIM115
-        self._json: IO[str] = open(folder / "sense.json", "w")  # noqa: SIM115
+        self.folder = writable_folder(folder)
+        try:
+            self._contacts_file = open(folder / "contacts.csv", "w", newline="")  # noqa: SIM115
+            self._frames_file = open(folder / "frames.csv", "w", newline="")  # noqa: SIM115
+            self._json: IO[str] = open(folder / "sense.json", "w")  # noqa: SIM115
+        except OSError as error:
+            raise OutputError(f"cannot write in {folder}: {error.strerror or error}") from error
         self._contacts = csv.writer(self._contacts_file)
         self._frames = csv.writer(self._frames_file)
         self._contacts.writerow(CONTACTS_HEADER)

@@ -7,7 +7,7 @@ from pathlib import Path
 import meshio
 import numpy as np
 
-from softforce_cli.io.atomic import atomic_path, atomic_write_text, check_writable
+from softforce_cli.io.atomic import atomic_path, atomic_write_text, check_writable, writable_folder
 from softforce_cli.model.procedural import DiamondGeometry, diamond_mesh
 
 ROBOT_FILE = "diamond.toml"
@@ -81,7 +81,7 @@ def write_default_robot(directory: Path, resolution: str = "coarse",
     geometry = DiamondGeometry()
     nodes, tets = diamond_mesh(resolution, geometry)
     markers = marker_positions(geometry)
-    directory.mkdir(parents=True, exist_ok=True)
+    writable_folder(directory)
     with atomic_path(mesh_path, force=force) as tmp:
         meshio.write_points_cells(tmp, nodes, [("tetra", tets)], file_format="vtu")
     atomic_write_text(robot_path, robot_toml(mesh_file, markers, resolution), force=force)

@@ -310,7 +310,6 @@ def _continued(model: FEModel, controls: tuple[str, ...], target: np.ndarray,
 
 def save_training_set(path: Path, data: TrainingSet, key: str) -> None:
     """Cache snapshots (npz) under a key naming the model and the design they belong to."""
-    path.parent.mkdir(parents=True, exist_ok=True)
     arrays = {f.name: np.asarray(getattr(data, f.name)) for f in dataclasses.fields(data)}
     with atomic_path(path, force=True) as temporary, open(temporary, "wb") as stream:
         np.savez(stream, key=np.array(key), **arrays)
