@@ -80,6 +80,7 @@ FOLDER_COMMANDS = {
               "{calibration}", "--frames", "0:1", "-o", "{out}"],
     "diagnose": ["diagnose", SAMPLES / "diagnose_slack.mcap", "--robot", ROBOT,
                  "--calibration", "{calibration}", "-o", "{out}"],
+    "model reduce": ["model", "reduce", ROBOT, "-o", "{out}/robot.rom.npz"],
 }
 
 

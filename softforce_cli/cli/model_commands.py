@@ -170,12 +170,13 @@ def reduce(
     from softforce_cli.fem.element import ELEMENTS
     from softforce_cli.fem.reduction.rom_file import save_reduction
     from softforce_cli.fem.reduction.train import TrainingSettings, train_robot
-    from softforce_cli.io.atomic import check_writable
+    from softforce_cli.io.atomic import check_can_write, check_writable
     from softforce_cli.model.robot import load_robot, with_element
 
     if element not in ELEMENTS:
         raise ModelError(f"--element {element!r} unknown; use {' or '.join(ELEMENTS)}")
     check_writable(output, force)
+    check_can_write(output)  # before the minutes of training
     robot = with_element(load_robot(robot_file), element)
     if not 0.0 < box_fraction <= 1.0:
         raise ModelError(f"--box-fraction {box_fraction:g} must be in (0, 1]")

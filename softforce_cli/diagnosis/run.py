@@ -15,7 +15,12 @@ from softforce_cli.diagnosis.pipeline import Diagnosis, diagnose_observations
 from softforce_cli.diagnosis.report import diagnosis_document, fitted_robot_toml
 from softforce_cli.diagnosis.solves import SolveCache
 from softforce_cli.estimation.session import FrameRange
-from softforce_cli.io.atomic import atomic_write_text, check_writable, writable_folder
+from softforce_cli.io.atomic import (
+    atomic_write_text,
+    check_can_write,
+    check_writable,
+    writable_folder,
+)
 from softforce_cli.model.robot import load_robot, robot_with_effects
 
 OUTPUTS = ("diagnosis.json", "robot.fitted.toml", "residual_map.png", "signature.png")
@@ -67,7 +72,7 @@ def run_diagnosis(inputs: DiagnoseInputs, stage: Stage,
                              f"{calibration.robot_name!r}, not {robot.name!r} ({inputs.robot});"
                              " calibrate this robot first")
     # a folder that cannot be written is found before the minutes of work, not after them
-    writable_folder(inputs.output)
+    check_can_write(inputs.output / "diagnosis.json")
     observations = observe_recordings(
         list(inputs.recordings), robot, calibration.robot_from_camera,
         (frame_range.start, frame_range.stop),

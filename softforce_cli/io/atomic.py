@@ -47,6 +47,14 @@ def temporary_beside(path: Path, prefix: str, suffix: str) -> tuple[int, Path]:
     return fd, Path(name)
 
 
+def check_can_write(path: Path) -> None:
+    """OutputError now, not after the work, when no file can be written beside `path` (its
+    folder is made when missing and kept)."""
+    fd, tmp = temporary_beside(Path(path), f".{Path(path).name}.", ".probe")
+    os.close(fd)
+    tmp.unlink()
+
+
 @contextlib.contextmanager
 def atomic_open(path: Path, mode: str = "w", force: bool = False) -> Iterator[IO]:
     """Open a temporary file next to `path`; on success rename it over `path`, else delete it.
