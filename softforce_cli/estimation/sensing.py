@@ -57,8 +57,9 @@ AXES = np.eye(3)
 # (ForceSensor._contact_nodes): about half the coarse Diamond's surface node spacing.
 RELOCATE_MM = 4.0
 # A known contact's point outside the body must lie within this of a surface node at rest
-# (mm): a point on a face of the coarse Diamond is within about 6 mm of one; one further
-# out is in other units or frame, and its attachment would extrapolate an element.
+# (mm): the coarse Diamond's surface triangles have their centroids within 5.1 mm of one
+# (3.8 mm median); a point further out is in other units or another frame, and its
+# attachment would extrapolate an element.
 KNOWN_CONTACT_REACH_MM = 10.0
 
 
