@@ -284,6 +284,47 @@ def test_static_stretch_is_the_longest_still_run():
     assert static_stretch(still) == (3, 8)
 
 
+def test_a_marker_missing_from_some_frames_neither_breaks_the_stretch_nor_is_lost(tmp_path):
+    """The sample markers recording with its apex marker left out of every other frame (a
+    tracker losing it): the still frames 0-1 are still averaged, with the apex from the frame
+    that saw it. Before, frames of different marker sets were never averaged together and
+    the calibration took frame 0 alone, without the apex (2 mm further off sideways)."""
+    import dataclasses
+
+    from softforce_cli.io.mcap_reader import iter_frames
+    from softforce_cli.io.mcap_writer import write_recording
+
+    frames = list(iter_frames(RECORDINGS / "markers.mcap"))
+    full = [frame.markers for frame in frames]
+    flickering = []
+    for index, frame in enumerate(frames):
+        keep = [k for k, marker in enumerate(frame.markers.ids)
+                if marker != "apex" or index % 2]
+        flickering.append(dataclasses.replace(frame, markers=Markers(
+            tuple(frame.markers.ids[k] for k in keep), frame.markers.positions_mm[keep])))
+    path = tmp_path / "flicker.mcap"
+    write_recording(flickering, path)
+    taken = markers_from_recording(path)
+    assert taken.frames == (0, 1)
+    assert set(taken.markers.ids) == set(full[0].ids)
+    apex = full[1].ids.index("apex")
+    found = dict(zip(taken.markers.ids, taken.markers.positions_mm, strict=True))
+    np.testing.assert_allclose(found["apex"], full[1].positions_mm[apex])
+    others = [k for k, marker in enumerate(full[0].ids) if marker != "apex"]
+    np.testing.assert_allclose(
+        [found[full[0].ids[k]] for k in others],
+        (full[0].positions_mm[others] + full[1].positions_mm[others]) / 2)
+
+
+def test_a_frame_sharing_no_marker_with_the_stretch_ends_it():
+    still = np.zeros((6, 4, 3))
+    still[2, :2] = np.nan   # frame 2 sees markers 2-3 only: the same stretch
+    assert static_stretch(still) == (0, 6)
+    still[:4, 3] = np.nan   # frames 0-3 never see marker 3 ...
+    still[4, :3] = np.nan   # ... and frame 4 sees it alone: nothing to compare, a new run
+    assert static_stretch(still) == (0, 4)
+
+
 def test_markers_csv_round_trip():
     markers = Markers(("apex", "bar_east"), np.array([[1.0, 2.0, 3.0], [-4.5, 5.25, 580.0]]))
     parsed = parse_markers_csv("# observed by hand\n" + markers_to_csv(markers) + "\n")

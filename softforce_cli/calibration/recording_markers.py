@@ -39,17 +39,34 @@ def static_stretch(positions_mm: np.ndarray, tolerance_mm: float = STATIC_TOLERA
                    ) -> tuple[int, int]:
     """[start, stop) of the longest run of frames (f, k, 3) in which each frame's median
     marker lies within tolerance_mm of its mean over the run's earlier frames; the earliest of
-    equal runs."""
+    equal runs. NaN rows are markers a frame did not see: the median is over the markers seen
+    both in the frame and earlier in the run, and a frame that shares none ends the run."""
     best = (0, 1)
     start = 0
     for frame in range(1, len(positions_mm) + 1):
-        moved = frame < len(positions_mm) and np.median(np.linalg.norm(
-            positions_mm[frame] - positions_mm[start:frame].mean(axis=0), axis=1)) > tolerance_mm
+        moved = frame < len(positions_mm) and _moved(positions_mm[frame],
+                                                     positions_mm[start:frame], tolerance_mm)
         if frame == len(positions_mm) or moved:
             if frame - start > best[1] - best[0]:
                 best = (start, frame)
             start = frame
     return best
+
+
+def _moved(frame_mm: np.ndarray, run_mm: np.ndarray, tolerance_mm: float) -> bool:
+    """Whether a frame's markers (k, 3) left the run's (f, k, 3) mean (NaN: not seen)."""
+    mean = _nan_mean(run_mm)
+    distances = np.linalg.norm(frame_mm - mean, axis=1)
+    shared = distances[np.isfinite(distances)]
+    return len(shared) == 0 or float(np.median(shared)) > tolerance_mm
+
+
+def _nan_mean(positions_mm: np.ndarray) -> np.ndarray:
+    """(k, 3) each marker's mean over the frames (f, k, 3) that saw it; NaN if none did."""
+    seen = np.isfinite(positions_mm[..., 0])
+    total = np.where(seen[..., None], positions_mm, 0.0).sum(axis=0)
+    counts = seen.sum(axis=0)[:, None]
+    return np.where(counts > 0, total / np.maximum(counts, 1), np.nan)
 
 
 def markers_from_recording(path: Path, frame: int | None = None,
@@ -79,19 +96,17 @@ def markers_from_recording(path: Path, frame: int | None = None,
 
 def _average_static(observed: list[tuple[int, Markers]], tolerance_mm: float
                     ) -> RecordedMarkers:
-    """Split the frames into runs that see the same ids, take the longest static stretch."""
-    best: tuple[int, list[tuple[int, Markers]]] = (0, [])
-    run: list[tuple[int, Markers]] = []
-    for item in [*observed, None]:
-        if item is not None and run and item[1].ids == run[-1][1].ids:
-            run.append(item)
-            continue
-        if run:
-            stack = np.stack([np.asarray(m.positions_mm, float) for _, m in run])
-            start, stop = static_stretch(stack, tolerance_mm)
-            if stop - start > best[0]:
-                best = (stop - start, run[start:stop])
-        run = [item] if item is not None else []
-    frames = best[1]
-    positions = np.mean([np.asarray(m.positions_mm, float) for _, m in frames], axis=0)
-    return RecordedMarkers(Markers(frames[0][1].ids, positions), tuple(i for i, _ in frames))
+    """The longest static stretch of the observed frames, each marker averaged over the
+    frames of it that saw it: a marker that drops out of some frames (occluded, lost by the
+    tracker) neither breaks the stretch nor is lost."""
+    ids = tuple(dict.fromkeys(marker for _, markers in observed for marker in markers.ids))
+    column = {marker: i for i, marker in enumerate(ids)}
+    stack = np.full((len(observed), len(ids), 3), np.nan)
+    for row, (_, markers) in enumerate(observed):
+        stack[row, [column[marker] for marker in markers.ids]] = markers.positions_mm
+    start, stop = static_stretch(stack, tolerance_mm)
+    positions = _nan_mean(stack[start:stop])
+    seen = np.isfinite(positions[:, 0])
+    return RecordedMarkers(Markers(tuple(m for m, keep in zip(ids, seen, strict=True) if keep),
+                                   positions[seen]),
+                           tuple(index for index, _ in observed[start:stop]))
