@@ -144,6 +144,12 @@ def _copy_robot(tmp_path: Path) -> Path:
          "box_mm = [200.0, 200.0, 200.0, 300.0, 300.0, 300.0]", "catches no node"),
         ("path_mm = [[0.0000, 97.0000, 45.0000]]", "path_mm = [[0.0000, 140.0000, 45.0000]]",
          "outside the mesh"),
+        # the marker's position was printed as [np.float64(0.0), ...]
+        ("position_mm = [0.0000, 0.0000, 126.0000]", "position_mm = [0.0000, 0.0000, 500.0]",
+         "marker 'apex' at [0.0, 0.0, 500.0] mm is 374.1 mm outside the mesh"),
+        # a segment of no length: the cable's rows were NaN, a ValueError traceback
+        ("pull_point_mm = [0.0000, 10.0000, 30.0000]", "pull_point_mm = [0.0, 97.0, 45.0]",
+         "cable 'north' has two consecutive points (path_mm, then pull_point_mm) 0 mm apart"),
         ('path = "diamond_coarse.vtu"', 'path = "missing.vtu"', "not found"),
         ("count = 51", "count = -3", "positive integer"),
         ("count = 51", 'count = 51\nplacement = "edges"', "features.placement must be one of"),

@@ -5,6 +5,7 @@ Every check raises ModelError with one line naming the file, the key and the fix
 
 from __future__ import annotations
 
+import itertools
 import math
 import tomllib
 from dataclasses import dataclass
@@ -239,12 +240,20 @@ def _cables(cables: list[dict[str, Any]], where: _Where) -> tuple[CableSpec, ...
         high = where.number(cable.get("max", math.inf), f"cable {name!r} max")
         if low > high:
             raise ModelError(f"{where.source}: cable {name!r} has min {low:g} > max {high:g}")
-        specs.append(CableSpec(
+        spec = CableSpec(
             name=name,
             path_mm=tuple(where.vector(p, f"cable {name!r} path_mm") for p in path),
             pull_point_mm=where.vector(cable.get("pull_point_mm"), f"cable {name!r} pull_point_mm"),
             control=control, min=low, max=high,
-        ))
+        )
+        points = [*spec.path_mm, spec.pull_point_mm]
+        shortest = min(math.dist(a, b) for a, b in itertools.pairwise(points))
+        if shortest < MIN_SEGMENT_MM:
+            # a segment of no length has no direction: the cable's force and rows are NaN
+            raise ModelError(f"{where.source}: cable {name!r} has two consecutive points "
+                             f"(path_mm, then pull_point_mm) {shortest:.3g} mm apart; each "
+                             "segment needs a length")
+        specs.append(spec)
     _unique([c.name for c in specs], "cable name", where.source)
     return tuple(specs)
 
@@ -272,6 +281,9 @@ def _unique(names: list[str], what: str, source: Path) -> None:
 # Points farther than this from the origin are a unit mistake (m taken for mm, or worse), and
 # would overflow the nearest-element search.
 MAX_COORDINATE_MM = 1e6
+# Consecutive points of a cable (its path, then its pull point) closer than this (mm) make
+# a segment with no direction.
+MIN_SEGMENT_MM = 1e-3
 
 
 @dataclass(frozen=True)

@@ -263,7 +263,7 @@ def _check_inside(mesh: TetMesh, points: np.ndarray, what: str, source: Path,
     worst = int(np.argmax(outside))
     if outside[worst] > OUTSIDE_TOLERANCE_MM:
         label = f"{what} {names[worst]!r}" if names else what
-        raise ModelError(f"{source}: {label} at {list(np.round(points[worst], 2))} mm is "
+        raise ModelError(f"{source}: {label} at {np.round(points[worst], 2).tolist()} mm is "
                          f"{outside[worst]:.1f} mm outside the mesh (tolerance "
                          f"{OUTSIDE_TOLERANCE_MM} mm); check its coordinates and the mesh "
                          "placement")
