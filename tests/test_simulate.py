@@ -132,6 +132,11 @@ def test_weights_make_the_apex_sink_monotonically():
         ("[camera]", "[camera]\nzoom = 2", "unknown key 'zoom' in [camera]"),
         ('robot = "../diamond_truth/diamond.toml"', 'robot = "../nothere.toml"', "not found"),
         ("actuation = [0.0, 0.0, 0.0, 0.0]", "actuation = [0.0, 0.0]", "2 actuation values"),
+        # no pose follows from these cameras (a look_at ValueError's traceback before)
+        ("[camera]", "[camera]\nposition_mm = [0, 0, 580]\nlook_at_mm = [0, 0, 580]",
+         "camera: eye and target are the same point"),
+        ("[camera]", "[camera]\nup_hint = [0, 0, 1]", "camera: up_hint is parallel"),
+        ("[camera]", "[camera]\nhorizontal_fov_deg = 190", "must be below 180"),
     ],
 )
 def test_bad_scenarios_give_one_clear_line(tmp_path, old, new, message):

@@ -17,6 +17,7 @@ import numpy as np
 from softforce_cli.errors import ScenarioError
 from softforce_cli.fem.materials import LAWS
 from softforce_cli.model.effects import Effect, EffectError, parse_effects
+from softforce_cli.sim.camera_pose import look_at
 
 LOAD_KINDS = ("weight", "probe")
 # Bounds that keep a typo from asking for hours of work: a 4096-pixel image side (the D415
@@ -101,6 +102,20 @@ class CameraSpec:
     # multiplies the D415's axial depth noise (sim.depth_noise.D415Noise.scaled): 0 none,
     # 1 the D415's, 2 twice
     noise_scale: float = 1.0
+
+    def checked(self, source: Path) -> CameraSpec:
+        """This camera, or ScenarioError when no pose follows from it (a camera looking at
+        its own position, an up_hint along its view) or its field of view is not below 180
+        degrees."""
+        if self.horizontal_fov_deg >= 180.0:
+            raise ScenarioError(f"{source}: camera.horizontal_fov_deg = "
+                                f"{self.horizontal_fov_deg:g} must be below 180")
+        try:
+            look_at(np.array(self.position_mm), np.array(self.look_at_mm), np.array(self.up_hint))
+        except ValueError as error:
+            raise ScenarioError(f"{source}: camera: {str(error).removeprefix('look_at: ')} "
+                                "(position_mm, look_at_mm, up_hint)") from error
+        return self
 
 
 @dataclass(frozen=True)
@@ -198,7 +213,7 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
             up_hint=check.vector(camera.get("up_hint", [0, 1, 0]), "camera.up_hint"),
             noise=bool(camera.get("noise", True)),
             noise_scale=check.non_negative(camera.get("noise_scale", 1.0), "camera.noise_scale"),
-        ),
+        ).checked(path),
         scene=SceneSpec(
             table_z_mm=check.number(scene.get("table_z_mm", -37.5), "scene.table_z_mm"),
             robot_rgb=check.rgb(scene.get("robot_rgb", [40, 90, 210]), "scene.robot_rgb"),
