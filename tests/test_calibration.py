@@ -438,3 +438,16 @@ def test_cli_bad_markers_fail_with_one_line(tmp_path, csv, extra, fragment):
                     "-o", tmp_path / "c.json")
     assert_one_line_error(run, fragment)
     assert not (tmp_path / "c.json").exists()
+
+
+@pytest.mark.parametrize(("frame", "fragment"), [
+    ("5", "markers.mcap holds 5 frames (0 to 4); --frame 5 is not one of them"),
+    ("-1", "--frame -1: frames are counted from 0"),
+])
+def test_cli_frame_outside_the_recording_fails_with_one_line(tmp_path, frame, fragment):
+    """A frame the recording does not hold is named as such (it was said to have no marker
+    observations)."""
+    run = softforce("calibrate", "--robot", SAMPLE_ROBOT, "--recording",
+                    RECORDINGS / "markers.mcap", "--frame", frame, "-o", tmp_path / "c.json")
+    assert_one_line_error(run, fragment)
+    assert not (tmp_path / "c.json").exists()

@@ -75,14 +75,21 @@ def markers_from_recording(path: Path, frame: int | None = None,
     the longest static stretch of frames that observe the same markers."""
     from softforce_cli.io.mcap_reader import iter_frames
 
+    if frame is not None and frame < 0:
+        raise CalibrationError(f"--frame {frame}: frames are counted from 0")
     observed: list[tuple[int, Markers]] = []
+    frames = 0
     for index, rgbd in enumerate(iter_frames(Path(path))):
+        frames = index + 1
         if frame is not None and index != frame:
             continue
         if rgbd.markers is not None and len(rgbd.markers.ids):
             observed.append((index, rgbd.markers))
         if frame is not None:
             break
+    if frame is not None and frame >= frames:
+        raise CalibrationError(f"{path} holds {frames} frames (0 to {frames - 1}); --frame "
+                               f"{frame} is not one of them")
     if frame is not None and not observed:
         raise CalibrationError(f"{path}: frame {frame} has no marker observations (topic "
                                "/markers); pick another --frame or use --markers M.csv")
