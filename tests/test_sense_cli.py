@@ -10,11 +10,13 @@ import numpy as np
 import pytest
 
 from softforce_cli.calibration.result import read_calibration
+from softforce_cli.errors import SensingError
 from softforce_cli.estimation.sensing import ForceSensor
 from softforce_cli.estimation.settings import EstimationSettings, SenseSettings
 from softforce_cli.estimation.truth_errors import pose_from_truth
 from softforce_cli.io.mcap_reader import iter_frames
 from softforce_cli.model.robot import load_robot
+from softforce_cli.vision.settings import VisionSettings
 from tests.cli_runner import assert_one_line_error, softforce
 from tests.conftest import ROOT, SAMPLE_ROBOT
 
@@ -201,3 +203,17 @@ def test_a_lost_frame_does_not_join_the_tare(probes_run):
     # arrays' alignment): a lost frame joining the tare would move them by 0.01-1 mm
     np.testing.assert_allclose(strict.tare_offsets_mm, lenient.tare_offsets_mm, rtol=0,
                                atol=1e-9)
+
+
+@pytest.mark.parametrize(("table", "key", "value", "fragment"), [
+    # match_search_mm = 1e308 had sized the line samples: a ValueError traceback
+    ("vision", "match_search_mm", float("inf"), "must be at most 1500 mm"),
+    ("vision", "match_search_mm", 1e308, "must be at most 1500 mm"),
+    ("vision", "voxel_mm", float("nan"), "must be positive"),
+    ("estimation", "rematch_mm", float("nan"), "is not a number"),
+])
+def test_settings_that_are_not_finite_or_beyond_the_scene_are_refused(table, key, value,
+                                                                       fragment):
+    kind = VisionSettings if table == "vision" else EstimationSettings
+    with pytest.raises((ValueError, SensingError), match=fragment):
+        kind(**{key: value})

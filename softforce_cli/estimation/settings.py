@@ -104,6 +104,9 @@ class EstimationSettings:
     regularization: float = 1e-6
 
     def __post_init__(self) -> None:
+        for name, value in vars(self).items():
+            if isinstance(value, float) and value != value:
+                raise SensingError(f"estimation.{name} is not a number (NaN)")
         if self.force_model not in FORCE_MODELS:
             raise SensingError(f"estimation.force_model {self.force_model!r} unknown; use "
                                f"one of {', '.join(FORCE_MODELS)}")

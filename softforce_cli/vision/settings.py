@@ -4,6 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+# The longest distance a vision setting may give (mm): beyond the 1.5 m a D415 sees a soft
+# robot from, where match_search_mm's line samples would no longer fit in memory.
+MAX_LENGTH_MM = 1500.0
+
 
 @dataclass(frozen=True)
 class VisionSettings:
@@ -148,6 +152,10 @@ class VisionSettings:
                            "match_mean_mm", "occluded_tip_mm")
             if name not in may_be_zero and not value > 0:
                 raise ValueError(f"vision setting {name} must be positive, got {value}")
+            # a length beyond the scene (or infinite) sizes arrays the machine cannot hold
+            if name.endswith("_mm") and not value <= MAX_LENGTH_MM:
+                raise ValueError(f"vision setting {name} must be at most {MAX_LENGTH_MM:g} mm, "
+                                 f"got {value}")
         if self.occluded_tip_mm < 0:
             raise ValueError("vision setting occluded_tip_mm must be >= 0 (0 turns it off), "
                              f"got {self.occluded_tip_mm}")
