@@ -18,7 +18,7 @@ from softforce_cli.estimation.truth_errors import read_truth
 from softforce_cli.io.mcap_reader import iter_frames
 from softforce_cli.model.robot import load_robot
 from softforce_cli.vision.contacts import object_regions, occluded_tips
-from softforce_cli.vision.pipeline import process_frame
+from softforce_cli.vision.pipeline import process_frame, robot_distance_mm
 from softforce_cli.vision.point_cloud import cloud_from_frame
 from softforce_cli.vision.segmentation import learn_robot_colour
 from softforce_cli.vision.settings import VisionSettings, settings_for_camera
@@ -38,7 +38,8 @@ def run() -> list[BenchRow]:
     first = frames[0]
     robot_rgb = learn_robot_colour(
         cloud_from_frame(first.depth_mm, first.color, first.intrinsics, pose), surface)
-    settings = settings_for_camera(VisionSettings(), first.intrinsics.fx)
+    settings = settings_for_camera(VisionSettings(), first.intrinsics.fx,
+                                   robot_distance_mm(mesh.bounds_mm, pose))
     # every fifth frame: each held state (unloaded, one probe, two probes) twice
     inputs = []
     for frame in frames[::5]:

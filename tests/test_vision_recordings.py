@@ -5,6 +5,7 @@ camera pose it was rendered from."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,6 +14,7 @@ from scipy.spatial import cKDTree
 from softforce_cli.calibration.rigid import RigidTransform
 from softforce_cli.io.mcap_reader import iter_frames
 from softforce_cli.sim.simulate import simulate
+from softforce_cli.vision.decimation import decimate_frame
 from softforce_cli.vision.feature_matching import match_features
 from softforce_cli.vision.filters import crop_box_from_bounds, neighbour_counts, voxel_downsample
 from softforce_cli.vision.pipeline import STAGES, process_frame, robot_distance_mm
@@ -184,21 +186,31 @@ def _robot_density(frame, pose: RigidTransform, bounds_mm: np.ndarray) -> float:
 def test_neighbour_counts_scale_with_the_measured_point_density(probes, sample_robot, tmp_path):
     """settings_for_camera scales the counts with the robot's point density. Reference: the
     density measured on the sample's first frame (424x240) and on the same scene simulated at
-    1280x720 (about 4.9 times as dense). The focal length squared alone, the rule before,
-    predicted 9.2 times, and at 1280x720 missed 11 of 60 probe contacts."""
+    1280x720, every pixel kept (about 4.9 times as dense) and decimated by the automatic 2
+    (about twice). The focal length squared alone, the rule before, predicted 9.2 times for
+    every pixel, and at 1280x720 missed 11 of 60 probe contacts."""
     _, pose, _, _, _ = probes
     (tmp_path / "hd.toml").write_text(sample_probes_scenario(1280, 720, frames=1))
     hd = next(iter_frames(simulate(tmp_path / "hd.toml", tmp_path / "hd.mcap").recording))
     low = next(iter_frames(RECORDING))
     bounds = sample_robot.mesh.bounds_mm
-    measured = _robot_density(hd, pose, bounds) / _robot_density(low, pose, bounds)
-    many = VisionSettings(outlier_min_neighbours=10_000)
     distance = robot_distance_mm(bounds, pose)
 
-    def scale(focal_px: float) -> float:
+    def scale(focal_px: float, decimation: int) -> float:
+        many = VisionSettings(outlier_min_neighbours=10_000, decimation=decimation)
         return settings_for_camera(many, focal_px, distance).outlier_min_neighbours / 10_000
 
-    predicted = scale(hd.intrinsics.fx) / scale(low.intrinsics.fx)
+    measured = _robot_density(hd, pose, bounds) / _robot_density(low, pose, bounds)
+    predicted = scale(hd.intrinsics.fx, 1) / scale(low.intrinsics.fx, 1)
     assert 4.0 < measured < 6.0
     assert predicted == pytest.approx(measured, rel=0.15)
     assert (hd.intrinsics.fx / low.intrinsics.fx) ** 2 > 1.5 * measured
+
+    factor = settings_for_camera(VisionSettings(), hd.intrinsics.fx, distance).decimation
+    assert factor == 2
+    depth, color, intrinsics = decimate_frame(hd.depth_mm, hd.color, hd.intrinsics, factor)
+    decimated = replace(hd, depth_mm=depth, color=color, intrinsics=intrinsics)
+    measured = _robot_density(decimated, pose, bounds) / _robot_density(low, pose, bounds)
+    predicted = scale(hd.intrinsics.fx, 0) / scale(low.intrinsics.fx, 0)
+    assert 1.8 < measured < 3.0
+    assert predicted == pytest.approx(measured, rel=0.15)

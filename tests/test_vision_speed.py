@@ -1,5 +1,6 @@
-"""`make bench` only: the vision stage at the D415's 640x480 on a freshly simulated probes
-recording (about 30 s to simulate): speed per stage, and both probes found.
+"""`make bench` only: the vision stage at the D415's 640x480 and 1280x720 on freshly
+simulated probes recordings (about 30 s and 90 s to simulate): speed per stage, and both
+probes found; at 1280x720 decimated (the default) and with every pixel.
 
 Run alone with `.venv/bin/pytest -q -s -m bench tests/test_vision_speed.py`; it prints the
 median milliseconds of every stage (docs/vision.md quotes them).
@@ -24,26 +25,39 @@ REPEATS = 40
 
 
 @pytest.fixture(scope="module")
-def probes_640(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("vision_speed")
-    (folder / "probes640.toml").write_text(sample_probes_scenario(640, 480))
-    result = simulate(folder / "probes640.toml", folder / "probes640.mcap")
-    truth = json.loads(result.truth.read_text())
-    return list(iter_frames(result.recording)), truth
+def probes(tmp_path_factory):
+    """(width, height) -> the probes recording's frames and truth, simulated once each."""
+    simulated = {}
+
+    def recording(width: int, height: int) -> tuple[list, dict]:
+        if (width, height) not in simulated:
+            folder = tmp_path_factory.mktemp(f"vision_speed_{width}")
+            (folder / "probes.toml").write_text(sample_probes_scenario(width, height))
+            result = simulate(folder / "probes.toml", folder / "probes.mcap")
+            simulated[width, height] = (list(iter_frames(result.recording)),
+                                        json.loads(result.truth.read_text()))
+        return simulated[width, height]
+
+    return recording
 
 
 @pytest.mark.bench
-def test_vision_stage_speed_and_accuracy_at_640x480(probes_640, sample_robot):
-    frames, truth = probes_640
+@pytest.mark.parametrize("width, height, decimation",
+                         [(640, 480, 0), (1280, 720, 0), (1280, 720, 1)],
+                         ids=["640x480", "1280x720-decimated", "1280x720-every-pixel"])
+def test_vision_stage_speed_and_accuracy(probes, width, height, decimation, sample_robot):
+    frames, truth = probes(width, height)
+    intrinsics = frames[0].intrinsics
     pose = RigidTransform(np.array(truth["camera"]["rotation"]),
                           np.array(truth["camera"]["translation_mm"]))
-    assert frames[0].intrinsics.width == 640
     mesh = sample_robot.mesh
-    settings = settings_for_camera(VisionSettings(), frames[0].intrinsics.fx,
+    settings = settings_for_camera(VisionSettings(decimation=decimation), intrinsics.fx,
                                    robot_distance_mm(mesh.bounds_mm, pose))
-    assert settings.outlier_min_neighbours == 20  # the paper's values at this resolution
+    if decimation == 0:  # the paper's values: 640x480, or 1280x720 decimated to its pixels
+        assert settings.outlier_min_neighbours == 20
+        assert settings.decimation == (2 if intrinsics.width == 1280 else 1)
     arguments = dict(
-        intrinsics=frames[0].intrinsics, robot_from_camera=pose, model_bounds_mm=mesh.bounds_mm,
+        intrinsics=intrinsics, robot_from_camera=pose, model_bounds_mm=mesh.bounds_mm,
         feature_positions_mm=mesh.nodes_mm[sample_robot.feature_nodes],
         feature_normals=sample_robot.feature_normals, robot_rgb=np.array([37, 82, 192]),
         settings=settings, excluded_box_mm=np.array(sample_robot.config.fixed_boxes_mm[0]),
@@ -60,7 +74,8 @@ def test_vision_stage_speed_and_accuracy_at_640x480(probes_640, sample_robot):
                 timings[stage].append(ms)
     medians = {stage: float(np.median(ms)) for stage, ms in timings.items()}
     fastest = {stage: float(np.percentile(ms, 10)) for stage, ms in timings.items()}
-    print(f"\nvision stage, 640x480, {len(wall)} frames: median {np.median(wall):.1f} ms, "
+    print(f"\nvision stage, {intrinsics.width}x{intrinsics.height}, decimation "
+          f"{settings.decimation}, {len(wall)} frames: median {np.median(wall):.1f} ms, "
           f"10th-90th percentile {np.percentile(wall, 10):.1f}-{np.percentile(wall, 90):.1f} ms; "
           f"CPU time median {np.median(cpu):.1f} ms")
     for stage, ms in medians.items():

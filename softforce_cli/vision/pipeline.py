@@ -1,7 +1,8 @@
 """The whole vision stage of one frame: depth and colour in, contacts and matches out.
 
-table plane (fitted on a sample of the crop) -> cloud (crop, PassThrough, and table removal
-while back-projecting) -> VoxelGrid -> RadiusOutlier -> colour segmentation -> contacts
+decimation of a fine frame (decimation.py, timed with the cloud) -> table plane (fitted on
+a sample of the crop) -> cloud (crop, PassThrough, and table removal while back-projecting)
+-> VoxelGrid -> RadiusOutlier -> colour segmentation -> contacts
 (Algorithm 2, and the elongated objects whose tip is hidden) -> feature matching (Algorithm
 3), each stage timed. Up to the contacts the stages need nothing of the FE model but a crop
 box (observe_frame); the nearest features and the matching need the current feature
@@ -21,6 +22,7 @@ import numpy as np
 from softforce_cli.calibration.rigid import RigidTransform
 from softforce_cli.camera.intrinsics import CameraIntrinsics
 from softforce_cli.vision.contacts import DetectedContacts, detect_contacts, nearest_features
+from softforce_cli.vision.decimation import decimate_frame
 from softforce_cli.vision.feature_matching import FeatureMatches, match_features
 from softforce_cli.vision.filters import (
     crop_box_from_bounds,
@@ -29,9 +31,13 @@ from softforce_cli.vision.filters import (
     remove_radius_outliers_with_pairs,
     voxel_downsample,
 )
-from softforce_cli.vision.point_cloud import PointCloud, cloud_from_frame
+from softforce_cli.vision.point_cloud import PointCloud, box_pixels, cloud_from_frame
 from softforce_cli.vision.segmentation import Segmentation, segment_robot
-from softforce_cli.vision.settings import VisionSettings, settings_for_camera
+from softforce_cli.vision.settings import (
+    VisionSettings,
+    frame_decimation,
+    settings_for_camera,
+)
 
 # The table plane is fitted to every third pixel row and column of the crop: a ninth of the
 # pixels, still thousands of table points, so RANSAC and the least-squares refit lose nothing.
@@ -130,15 +136,21 @@ def observe_frame(
     excluded_box_mm: np.ndarray | None = None,
     table_plane: tuple[np.ndarray, float] | None = None,
 ) -> Observation:
-    """The stages of process_frame (same arguments) that need no feature geometry: table,
-    cloud, filters, segmentation, contacts. A sensor runs them on the next frame while its FE
-    model settles on this one (estimation.lookahead)."""
+    """The stages of process_frame (same arguments) that need no feature geometry: the
+    decimation of a fine frame, table, cloud, filters, segmentation, contacts. A sensor runs
+    them on the next frame while its FE model settles on this one (estimation.lookahead)."""
     clock = _Clock()
     bounds = np.asarray(model_bounds_mm, dtype=float).reshape(2, 3)
+    distance_mm = robot_distance_mm(bounds, robot_from_camera)
     if settings.scale_to_camera:
-        settings = settings_for_camera(settings, intrinsics.fx,
-                                       robot_distance_mm(bounds, robot_from_camera))
+        settings = settings_for_camera(settings, intrinsics.fx, distance_mm)
     box = crop_box_from_bounds(bounds, settings.crop_margin_mm)
+    factor = frame_decimation(settings, intrinsics.fx, distance_mm)
+    if factor > 1:  # only the crop box's pixels: a fifth of the frame or less
+        depth_mm, color, intrinsics = decimate_frame(
+            depth_mm, color, intrinsics, factor,
+            box_pixels(box, intrinsics, robot_from_camera))
+    decimation_ms = clock.lap("decimation")
     plane = table_plane
     if plane is None:
         sample = cloud_from_frame(depth_mm, color, intrinsics, robot_from_camera, box,
@@ -168,7 +180,9 @@ def observe_frame(
     camera_mm = robot_from_camera.translation_mm
     contacts = detect_contacts(segmentation, settings, excluded_box_mm, camera_mm=camera_mm)
     clock.lap("contacts")
-    return Observation(cloud, segmentation, contacts, plane, settings, camera_mm, clock.laps)
+    timings = {stage: clock.laps[stage] for stage in OBSERVED_STAGES}
+    timings["cloud"] += decimation_ms  # the decimated frame is the cloud's first step
+    return Observation(cloud, segmentation, contacts, plane, settings, camera_mm, timings)
 
 
 def match_observation(observation: Observation, feature_positions_mm: np.ndarray,
@@ -198,7 +212,9 @@ class _Clock:
         self.last = time.perf_counter()
         self.laps: dict[str, float] = {}
 
-    def lap(self, name: str) -> None:
+    def lap(self, name: str) -> float:
+        """Milliseconds since the last lap, kept as laps[name]."""
         now = time.perf_counter()
         self.laps[name] = 1e3 * (now - self.last)
         self.last = now
+        return self.laps[name]

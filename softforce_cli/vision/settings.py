@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+from softforce_cli.vision.decimation import MAX_DECIMATION, decimation_factor
+
 # The longest distance a vision setting may give (mm): beyond the 1.5 m a D415 sees a soft
 # robot from, where match_search_mm's line samples would no longer fit in memory.
 MAX_LENGTH_MM = 1500.0
@@ -113,11 +115,19 @@ class VisionSettings:
                              same modulus (0.52 N for 0.66 N near 0.185 MPa) and refuses.
 
     Other cameras:
+    decimation             : 0 (automatic): the frame's pixels are taken in k x k blocks
+                             (decimation.decimate_frame) with k = round(voxel_mm / pixel
+                             footprint) at the robot's distance: 2 for a 1280x720 D415 at
+                             0.5-0.6 m, whose pixels span half a leaf, 1 (every pixel) for
+                             848x480 and below. A finer image costs three to four times as
+                             much in the radius searches for a surface the feature points
+                             do not need finer (docs/vision.md, "Other resolutions"). 1
+                             keeps every pixel; k >= 2 (at most 8) forces k.
     scale_to_camera        : True, the neighbour counts above (outlier_min_neighbours,
                              contact_min_neighbours) are those of a 640x480 D415, the paper's
                              camera; pipeline.process_frame scales them to the frame's camera
-                             (its focal length and distance to the robot) with
-                             settings_for_camera. False uses them as given.
+                             (its focal length after decimation and its distance to the
+                             robot) with settings_for_camera. False uses them as given.
     """
 
     voxel_mm: float = 1.1
@@ -144,12 +154,13 @@ class VisionSettings:
     match_limit_mm: float = 20.0
     match_search_mm: float = 30.0
     match_mean_mm: float = 0.0
+    decimation: int = 0
     scale_to_camera: bool = True
 
     def __post_init__(self) -> None:
         for name, value in vars(self).items():
             may_be_zero = ("contact_min_neighbours", "outlier_min_neighbours", "scale_to_camera",
-                           "match_mean_mm", "occluded_tip_mm")
+                           "match_mean_mm", "occluded_tip_mm", "decimation")
             if name not in may_be_zero and not value > 0:
                 raise ValueError(f"vision setting {name} must be positive, got {value}")
             # a length beyond the scene (or infinite) sizes arrays the machine cannot hold
@@ -162,6 +173,9 @@ class VisionSettings:
         if self.contact_min_neighbours < 0 or self.outlier_min_neighbours < 0:
             raise ValueError("vision settings contact_min_neighbours and outlier_min_neighbours "
                              "must be >= 0")
+        if self.decimation not in range(MAX_DECIMATION + 1):
+            raise ValueError(f"vision setting decimation must be a whole number from 0 "
+                             f"(automatic) to {MAX_DECIMATION}, got {self.decimation}")
         if self.match_search_mm < self.match_limit_mm:
             raise ValueError("vision setting match_search_mm must be at least match_limit_mm")
 
@@ -171,33 +185,43 @@ class VisionSettings:
 REFERENCE_FOCAL_PX = 465.6
 
 
+def frame_decimation(settings: VisionSettings, focal_px: float, distance_mm: float) -> int:
+    """The decimation factor for a camera of focal length focal_px seeing the robot from
+    distance_mm: settings.decimation, or decimation.decimation_factor when it is 0."""
+    return settings.decimation or decimation_factor(focal_px, distance_mm, settings.voxel_mm)
+
+
 def settings_for_camera(settings: VisionSettings, focal_px: float, distance_mm: float
                         ) -> VisionSettings:
-    """The settings with their neighbour counts scaled to a camera of focal length focal_px
-    seeing the robot from distance_mm.
+    """The settings for a camera of focal length focal_px seeing the robot from distance_mm:
+    the decimation fixed (settings.decimation, or decimation_factor when 0) and the neighbour
+    counts scaled to the decimated image.
 
     outlier_min_neighbours and contact_min_neighbours are multiplied by the ratio of the
     robot's point density to that of the 640x480 D415 (REFERENCE_FOCAL_PX) at the same
     distance, and rounded (at least 1 and 0). After the VoxelGrid a surface holds about one
-    point per p max(p, v) of area, with p = distance_mm / focal_px a pixel's footprint and v
-    the grid's leaf: p^2 while pixels are coarser than the leaf; finer ones are merged
-    across the surface, but the depth noise spreads a leaf's pixels over leaves along the
-    view. Measured on the sample probes' first frame at 536 mm (robot points' median
-    neighbours within 5 mm, docs/vision.md): 17, 43 and 83 at 424x240, 640x480 and
-    1280x720, ratios 0.40 and 1.93 where this gives 0.44 and 2.09. With the 640x480 counts
-    at 424x240 the outlier filter removes most of the robot and no contact point has more
-    than 3 robot neighbours; scaled with the focal length squared at 1280x720 (80 and 12),
-    11 of 60 probe contacts went unseen. The result has scale_to_camera False.
+    point per p max(p, v) of area, with p = distance_mm / f a pixel's footprint (f the focal
+    length after decimation) and v the grid's leaf: p^2 while pixels are coarser than the
+    leaf; finer ones are merged across the surface, but the depth noise spreads a leaf's
+    pixels over leaves along the view. Measured on the sample probes' first frame at 536 mm
+    (robot points' median neighbours within 5 mm, docs/vision.md): 17, 43 and 83 at 424x240,
+    640x480 and 1280x720 (every pixel), ratios 0.40 and 1.93 where this gives 0.44 and 2.09.
+    With the 640x480 counts at 424x240 the outlier filter removes most of the robot and no
+    contact point has more than 3 robot neighbours; scaled with the focal length squared at
+    1280x720 (80 and 12), 11 of 60 probe contacts went unseen. The result has
+    scale_to_camera False.
     """
+    factor = frame_decimation(settings, focal_px, distance_mm)
 
     def density(focal: float) -> float:
         # a camera placed at the robot (a bad pose) still gets finite counts: the focal ratio
         footprint = max(distance_mm, 1e-9) / focal
         return 1.0 / (footprint * max(footprint, settings.voxel_mm))
 
-    scale = density(focal_px) / density(REFERENCE_FOCAL_PX)
+    scale = density(focal_px / factor) / density(REFERENCE_FOCAL_PX)
     return replace(
         settings,
+        decimation=factor,
         scale_to_camera=False,  # scaled once: process_frame must not scale these again
         outlier_min_neighbours=max(1, round(settings.outlier_min_neighbours * scale)),
         contact_min_neighbours=max(0, round(settings.contact_min_neighbours * scale)),
