@@ -17,7 +17,12 @@ from softforce_cli.sim.simulate import simulate
 from softforce_cli.vision.decimation import decimate_frame
 from softforce_cli.vision.feature_matching import match_features
 from softforce_cli.vision.filters import crop_box_from_bounds, neighbour_counts, voxel_downsample
-from softforce_cli.vision.pipeline import STAGES, process_frame, robot_distance_mm
+from softforce_cli.vision.pipeline import (
+    STAGES,
+    observe_frame,
+    process_frame,
+    robot_distance_mm,
+)
 from softforce_cli.vision.point_cloud import cloud_from_frame
 from softforce_cli.vision.segmentation import learn_robot_colour
 from softforce_cli.vision.settings import VisionSettings, settings_for_camera
@@ -214,3 +219,12 @@ def test_neighbour_counts_scale_with_the_measured_point_density(probes, sample_r
     predicted = scale(hd.intrinsics.fx, 0) / scale(low.intrinsics.fx, 0)
     assert 1.8 < measured < 3.0
     assert predicted == pytest.approx(measured, rel=0.15)
+
+    # the vision stage decimates the 1280x720 frame by itself, unless told to keep every pixel
+    arguments = (hd.depth_mm, hd.color, hd.intrinsics, pose, bounds, SCENE_ROBOT_RGB)
+    default = observe_frame(*arguments)
+    every_pixel = observe_frame(*arguments, VisionSettings(decimation=1))
+    assert (default.settings.decimation, every_pixel.settings.decimation) == (2, 1)
+    assert (default.settings.outlier_min_neighbours,
+            every_pixel.settings.outlier_min_neighbours) == (20, 42)
+    assert 0.3 < len(default.cloud) / len(every_pixel.cloud) < 0.7
