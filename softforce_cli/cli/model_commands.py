@@ -19,11 +19,9 @@ RobotArgument = Annotated[Path, typer.Argument(help="Robot model file (TOML).")]
 
 def parse_actuation(text: str) -> np.ndarray:
     """'5,5,0,0' -> array; one value per cable, in the cable's control units."""
-    try:
-        values = np.array([float(v) for v in text.split(",") if v.strip()], dtype=float)
-    except ValueError:
-        values = np.array([np.nan])
-    if not np.all(np.isfinite(values)):
+    from softforce_cli.estimation.setup import parse_numbers
+    values = parse_numbers(text)
+    if values is None:
         raise ModelError(f"--actuation {text!r}: expected comma-separated finite numbers, "
                          "e.g. 5,5,0,0")
     return values

@@ -57,13 +57,20 @@ class PreparedSensing:
     resources: contextlib.ExitStack = field(default_factory=contextlib.ExitStack)
 
 
+def parse_numbers(text: str) -> np.ndarray | None:
+    """"1, 2,3" -> (n,) float64 (empty items skipped); None when an item is not a finite
+    number: the comma-separated values of a command-line option."""
+    try:
+        values = np.array([float(v) for v in text.split(",") if v.strip()], dtype=float)
+    except ValueError:
+        return None
+    return values if np.all(np.isfinite(values)) else None
+
+
 def parse_vector(text: str, option: str, count: int = 3) -> np.ndarray:
     """"1,2,3" -> array; SensingError naming the option otherwise."""
-    try:
-        values = np.array([float(v) for v in text.split(",")])
-    except ValueError:
-        values = np.zeros(0)
-    if values.shape != (count,) or not np.all(np.isfinite(values)):
+    values = parse_numbers(text)
+    if values is None or values.shape != (count,):
         raise SensingError(f"{option} {text!r}: give {count} comma-separated numbers")
     return values
 
