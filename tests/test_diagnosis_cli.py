@@ -31,8 +31,11 @@ def cache(tmp_path_factory):
 def slack_run(tmp_path_factory, cache):
     folder = tmp_path_factory.mktemp("slack")
     calibration = pose_calibration(SLACK.with_suffix("").with_suffix(".truth.json"), folder)
+    # the default thresholds, stated in a settings file: the file is read and recorded
+    settings = folder / "settings.toml"
+    settings.write_text("[vision]\nvoxel_mm = 1.1\ndecimation = 0\n")
     result = softforce("diagnose", SLACK, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
-                       "-o", folder / "out", "--cache", cache)
+                       "-o", folder / "out", "--cache", cache, "--settings", settings)
     return result, folder / "out", calibration
 
 
@@ -89,6 +92,7 @@ def test_diagnosis_json_follows_the_contract(slack_run):
         assert (out / name).stat().st_size > 0
     document = json.loads((out / "diagnosis.json").read_text())
     assert {"verdict", "noise_floor_mm", "effects", "location"} <= set(document)
+    assert document["inputs"]["settings"].endswith("settings.toml")
     assert 0 < document["noise_floor_mm"] < 1.0
     assert set(document["location"]) >= {"regions", "cables", "nodes"}
     names = {"gravity", "stiffness_scale", "regional_stiffness", "material_nonlinearity",
@@ -203,6 +207,17 @@ def test_bad_input_is_one_line(slack_run, tmp_path):
     away = softforce("diagnose", SLACK, "--robot", SAMPLE_ROBOT, "--calibration", elsewhere,
                      "-o", tmp_path / "b")
     assert_one_line_error(away, "calibration belongs to this camera")
+    # the settings reach the vision: everything within a metre of the table is table
+    for text, message in [("[vision]\ntable_clearance_mm = 1000.0\n", "shows the robot"),
+                          ("[vision]\ndecimation = 9\n", "decimation"),
+                          ("[vision]\nvoxel = 1.1\n", "voxel")]:
+        settings = tmp_path / "settings.toml"
+        settings.write_text(text)
+        refused = softforce("diagnose", SLACK, "--robot", SAMPLE_ROBOT, "--calibration",
+                            calibration, "-o", tmp_path / "d", "--settings", settings,
+                            "--no-cache")
+        assert_one_line_error(refused, message)
+        assert not (tmp_path / "d" / "diagnosis.json").exists()
     # a recording whose actuation never changes cannot tell physics from the model
     weights = RECORDINGS / "weights.mcap"
     still = softforce("diagnose", weights, "--robot", SAMPLE_ROBOT, "--calibration",

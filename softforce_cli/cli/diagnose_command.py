@@ -29,13 +29,17 @@ def diagnose(
         file_okay=False)] = None,
     no_cache: Annotated[bool, typer.Option(
         "--no-cache", help="Solve every state afresh and keep nothing.")] = False,
+    settings_file: Annotated[Path | None, typer.Option(
+        "--settings", help="TOML whose [vision] thresholds the point clouds are taken with, "
+                           "as sense reads them (docs/vision.md).", dir_okay=False)] = None,
     force: ForceOption = False,
 ) -> None:
     """Locate the sim-vs-real mismatch, name the missing physics, fit it, show the gain."""
     from softforce_cli.diagnosis.run import DiagnoseInputs, default_cache, run_diagnosis
 
     folder = None if no_cache else (cache or default_cache())
-    inputs = DiagnoseInputs(tuple(recordings), robot, calibration, output, frames, force, folder)
+    inputs = DiagnoseInputs(tuple(recordings), robot, calibration, output, frames, force, folder,
+                            settings_file)
     columns = (TextColumn("{task.description:>14}"), BarColumn(), MofNCompleteColumn(),
                TimeElapsedColumn())
     # transient: a bad input found mid-run leaves its one line alone on stderr

@@ -107,8 +107,10 @@ def observe_recordings(
     paths: list[Path], robot: Robot, robot_from_camera: RigidTransform,
     frame_range: tuple[int, int | None] = (0, None), progress: Progress | None = None,
     stop_requested: Callable[[], bool] = lambda: False, seed: int = 0,
+    vision: VisionSettings = VisionSettings(),
 ) -> Observations:
-    """Every frame of `paths` in `frame_range` (start, stop) through the vision stage.
+    """Every frame of `paths` in `frame_range` (start, stop) through the vision stage, with
+    the thresholds `vision`.
 
     DiagnosisError when a frame's actuation does not fit the robot's cables, or when no
     frame shows the robot. Frames that show too little of the robot are skipped and counted.
@@ -135,9 +137,10 @@ def observe_recordings(
             if robot_rgb is None:
                 check_actuation(robot, frame, str(path))
                 robot_rgb = learned_robot_colour(frame, robot_from_camera, robot.mesh.nodes_mm,
-                                                 robot.mesh.surface_nodes, VisionSettings())
+                                                 robot.mesh.surface_nodes, vision)
             first_ns = frame.time_ns if first_ns is None else first_ns
-            points, table = observe_frame(frame, robot, robot_from_camera, robot_rgb, rng, table)
+            points, table = observe_frame(frame, robot, robot_from_camera, robot_rgb, rng, table,
+                                          vision)
             done += 1
             if progress is not None:
                 progress(done, total)

@@ -15,6 +15,7 @@ from softforce_cli.diagnosis.pipeline import Diagnosis, diagnose_observations
 from softforce_cli.diagnosis.report import diagnosis_document, fitted_robot_toml
 from softforce_cli.diagnosis.solves import SolveCache
 from softforce_cli.estimation.session import FrameRange
+from softforce_cli.estimation.settings import load_settings
 from softforce_cli.io.atomic import (
     atomic_write_text,
     check_can_write,
@@ -37,7 +38,8 @@ def default_cache() -> Path:
 
 @dataclass(frozen=True)
 class DiagnoseInputs:
-    """What `softforce diagnose` was given; cache None: solve everything afresh."""
+    """What `softforce diagnose` was given; cache None: solve everything afresh;
+    settings_file: a sense settings file, whose [vision] thresholds the clouds are taken with."""
 
     recordings: tuple[Path, ...]
     robot: Path
@@ -46,6 +48,7 @@ class DiagnoseInputs:
     frames: str | None = None
     force: bool = False
     cache: Path | None = None
+    settings_file: Path | None = None
 
 
 def run_diagnosis(inputs: DiagnoseInputs, stage: Stage,
@@ -62,6 +65,7 @@ def run_diagnosis(inputs: DiagnoseInputs, stage: Stage,
         frame_range = FrameRange.parse(inputs.frames)
     except ValueError as error:
         raise DiagnosisError(str(error)) from error
+    vision = load_settings(inputs.settings_file).vision
     # the diagnosis compares the robot file's nominal model with the recordings: effects the
     # file already carries (a robot.fitted.toml) are left out, and said so
     given = load_robot(inputs.robot)
@@ -77,7 +81,7 @@ def run_diagnosis(inputs: DiagnoseInputs, stage: Stage,
         list(inputs.recordings), robot, calibration.robot_from_camera,
         (frame_range.start, frame_range.stop),
         progress=lambda done, total: stage("vision", done, total),
-        stop_requested=stop_requested)
+        stop_requested=stop_requested, vision=vision)
     if len(observations.frames) < MIN_FRAMES and not stop_requested():
         raise DiagnosisError(f"only {len(observations.frames)} usable frames in "
                              f"{', '.join(map(str, inputs.recordings))}; diagnosis needs "
@@ -101,7 +105,8 @@ def write_outputs(inputs: DiagnoseInputs, diagnosis: Diagnosis, stage: Stage) ->
     output = writable_folder(inputs.output)
     document = diagnosis_document(diagnosis, {
         "recordings": [str(p) for p in inputs.recordings], "robot": str(inputs.robot),
-        "calibration": str(inputs.calibration), "frames": inputs.frames})
+        "calibration": str(inputs.calibration), "frames": inputs.frames,
+        "settings": None if inputs.settings_file is None else str(inputs.settings_file)})
     atomic_write_text(output / "diagnosis.json", json.dumps(document, indent=1) + "\n",
                       force=inputs.force)
     if diagnosis.verdict is None:
