@@ -129,6 +129,9 @@ def test_missing_recording_and_settings_fail_with_one_line(probes_run, tmp_path)
     negative = softforce("sense", PROBES, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
                          "-o", tmp_path / "out", "--settings", settings)
     assert_one_line_error(negative, "relinearize_mm")
+    folder = softforce("sense", PROBES, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
+                       "-o", tmp_path / "out", "--settings", tmp_path)
+    assert_one_line_error(folder, "is not a file")
 
 
 def test_recording_without_actuation_is_refused_when_the_cables_need_it(tmp_path):

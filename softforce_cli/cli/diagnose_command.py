@@ -31,7 +31,7 @@ def diagnose(
         "--no-cache", help="Solve every state afresh and keep nothing.")] = False,
     settings_file: Annotated[Path | None, typer.Option(
         "--settings", help="TOML whose [vision] thresholds the point clouds are taken with, "
-                           "as sense reads them (docs/vision.md).", dir_okay=False)] = None,
+                           "as sense reads them (docs/vision.md).")] = None,
     force: ForceOption = False,
 ) -> None:
     """Locate the sim-vs-real mismatch, name the missing physics, fit it, show the gain."""

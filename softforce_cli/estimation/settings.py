@@ -140,7 +140,8 @@ def load_settings(path: Path | None, overrides: dict[str, Any] | None = None) ->
     tables: dict[str, dict[str, Any]] = {"vision": {}, "estimation": {}}
     if path is not None:
         if not Path(path).is_file():
-            raise SensingError(f"settings file {path} not found")
+            what = "is not a file" if Path(path).exists() else "not found"
+            raise SensingError(f"settings file {path} {what}")
         try:
             data = tomllib.loads(Path(path).read_text())
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
