@@ -56,6 +56,12 @@ def test_sense_writes_the_three_files_of_the_contract(probes_run):
     assert {"recording", "robot", "calibration", "settings", "frames", "summary"} <= set(document)
     assert [f["frame"] for f in document["frames"]] == [0, 1, 2, 3]
     assert document["summary"]["frames"] == 4
+    # the 424x240 sample: every pixel, the paper's counts scaled to its coarser image (as
+    # test_default_settings_are_scaled_to_the_recording_camera finds them in the pipeline)
+    camera = document["camera"]
+    assert (camera["width"], camera["height"], camera["decimation"]) == (424, 240, 1)
+    assert (camera["outlier_min_neighbours"], camera["contact_min_neighbours"]) == (9, 1)
+    assert 500 < camera["robot_distance_mm"] < 600
     for frame, row in zip(document["frames"], frames[1:], strict=True):
         assert frame["status"] == row[2]
         assert len(frame["contacts"]) == int(row[3])

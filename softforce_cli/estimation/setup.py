@@ -6,7 +6,7 @@ import contextlib
 import itertools
 import json
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -15,12 +15,15 @@ import numpy as np
 from softforce_cli import __version__
 from softforce_cli.calibration.material import read_material, robot_with_material
 from softforce_cli.calibration.result import read_calibration
+from softforce_cli.camera.intrinsics import CameraIntrinsics
 from softforce_cli.errors import SensingError
 from softforce_cli.estimation.sensing import ForceSensor, KnownContact, check_actuation
 from softforce_cli.estimation.session import FrameRange
 from softforce_cli.estimation.settings import load_settings
 from softforce_cli.io.sense_files import check_output_folder
 from softforce_cli.model.robot import load_robot
+from softforce_cli.vision.pipeline import robot_distance_mm
+from softforce_cli.vision.settings import VisionSettings, frame_decimation, settings_for_camera
 
 
 class LockingWarning(UserWarning):
@@ -73,6 +76,20 @@ def parse_vector(text: str, option: str, count: int = 3) -> np.ndarray:
     if values is None or values.shape != (count,):
         raise SensingError(f"{option} {text!r}: give {count} comma-separated numbers")
     return values
+
+
+def _camera_entry(intrinsics: CameraIntrinsics, vision: VisionSettings,
+                  sensor: ForceSensor) -> dict[str, Any]:
+    """sense.json's "camera": the first frame's image and the vision thresholds the pipeline
+    takes for it (vision.settings.settings_for_camera, at the robot's distance at rest)."""
+    distance_mm = robot_distance_mm(sensor.crop_bounds_mm, sensor.transform)
+    used = (settings_for_camera(vision, intrinsics.fx, distance_mm) if vision.scale_to_camera
+            else replace(vision, decimation=frame_decimation(vision, intrinsics.fx,
+                                                             distance_mm)))
+    return {"width": intrinsics.width, "height": intrinsics.height, "fx": intrinsics.fx,
+            "robot_distance_mm": round(distance_mm, 1), "decimation": used.decimation,
+            "outlier_min_neighbours": used.outlier_min_neighbours,
+            "contact_min_neighbours": used.contact_min_neighbours}
 
 
 def prepare_sensing(inputs: SenseInputs, live: bool = False) -> PreparedSensing:
@@ -131,6 +148,7 @@ def prepare_sensing(inputs: SenseInputs, live: bool = False) -> PreparedSensing:
                         else calibration.residual_rms_mm,
                         "material": material},
         "settings": settings.to_dict(),
+        "camera": _camera_entry(first[1].intrinsics, settings.vision, sensor),
         "known_contact": None if known is None else {
             "rest_point_mm": known.rest_point_mm.tolist(),
             "direction": known.direction.tolist()},
