@@ -137,6 +137,9 @@ def test_weights_make_the_apex_sink_monotonically():
          "camera: eye and target are the same point"),
         ("[camera]", "[camera]\nup_hint = [0, 0, 1]", "camera: up_hint is parallel"),
         ("[camera]", "[camera]\nhorizontal_fov_deg = 190", "must be below 180"),
+        # a depth stream the D415 does not have (its minimum range would hide the robot)
+        ("width = 424\nheight = 240", "width = 1920\nheight = 1080",
+         "measures depth at 1280x720 at most"),
     ],
 )
 def test_bad_scenarios_give_one_clear_line(tmp_path, old, new, message):

@@ -58,6 +58,8 @@ _KEYS = {
 # continuum (the locking-free truth's Newton solve does not converge under 1 N there).
 HOOK_RADIUS_MM = 3.0
 GRAVITY_N_PER_G = 9.81e-3
+# the D415's largest depth stream (width, height): the sensor model renders depth there
+D415_DEPTH_SIZE = (1280, 720)
 
 
 @dataclass(frozen=True)
@@ -110,6 +112,14 @@ class CameraSpec:
         if self.horizontal_fov_deg >= 180.0:
             raise ScenarioError(f"{source}: camera.horizontal_fov_deg = "
                                 f"{self.horizontal_fov_deg:g} must be below 180")
+        if self.noise and (self.width > D415_DEPTH_SIZE[0] or self.height > D415_DEPTH_SIZE[1]):
+            # its larger colour images carry a 1280x720 depth aligned to them, which the
+            # sensor model does not render: at 1920x1080 it would take the colour camera's
+            # focal length for the stereo pair's and see nothing nearer than 0.61 m
+            raise ScenarioError(
+                f"{source}: camera {self.width}x{self.height}: a D415 measures depth at "
+                f"{D415_DEPTH_SIZE[0]}x{D415_DEPTH_SIZE[1]} at most; take a smaller image, or "
+                "noise = false for an ideal camera of that size")
         try:
             look_at(np.array(self.position_mm), np.array(self.look_at_mm), np.array(self.up_hint))
         except ValueError as error:
