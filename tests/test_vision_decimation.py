@@ -11,7 +11,12 @@ import pytest
 
 from softforce_cli.camera.intrinsics import CameraIntrinsics, points_from_depth
 from softforce_cli.vision.decimation import decimate_frame, decimation_factor, valid_median
-from softforce_cli.vision.settings import REFERENCE_FOCAL_PX, VisionSettings, settings_for_camera
+from softforce_cli.vision.settings import (
+    REFERENCE_FOCAL_PX,
+    VisionSettings,
+    settings_for_camera,
+    settings_for_frame,
+)
 
 INTRINSICS = CameraIntrinsics(width=64, height=48, fx=50.0, fy=52.0, cx=31.2, cy=24.7)
 
@@ -96,6 +101,11 @@ def test_settings_for_a_fine_camera_fix_the_factor_and_count_its_coarser_pixels(
     every = settings_for_camera(VisionSettings(decimation=1), 931.2, 536.0)
     assert every.decimation == 1
     assert (every.outlier_min_neighbours, every.contact_min_neighbours) == (42, 6)
+    # a frame is processed with these; counts taken as given still get the factor fixed
+    assert settings_for_frame(VisionSettings(), 931.2, 536.0) == hd
+    given = settings_for_frame(VisionSettings(outlier_min_neighbours=7, scale_to_camera=False),
+                               931.2, 536.0)
+    assert (given.decimation, given.outlier_min_neighbours) == (2, 7)
 
 
 @pytest.mark.parametrize("value", [-1, 9])

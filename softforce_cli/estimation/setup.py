@@ -6,7 +6,7 @@ import contextlib
 import itertools
 import json
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +23,7 @@ from softforce_cli.estimation.settings import load_settings
 from softforce_cli.io.sense_files import check_output_folder
 from softforce_cli.model.robot import load_robot
 from softforce_cli.vision.pipeline import robot_distance_mm
-from softforce_cli.vision.settings import VisionSettings, frame_decimation, settings_for_camera
+from softforce_cli.vision.settings import VisionSettings, settings_for_frame
 
 
 class LockingWarning(UserWarning):
@@ -81,11 +81,9 @@ def parse_vector(text: str, option: str, count: int = 3) -> np.ndarray:
 def _camera_entry(intrinsics: CameraIntrinsics, vision: VisionSettings,
                   sensor: ForceSensor) -> dict[str, Any]:
     """sense.json's "camera": the first frame's image and the vision thresholds the pipeline
-    takes for it (vision.settings.settings_for_camera, at the robot's distance at rest)."""
+    takes for it (vision.settings.settings_for_frame, at the robot's distance at rest)."""
     distance_mm = robot_distance_mm(sensor.crop_bounds_mm, sensor.transform)
-    used = (settings_for_camera(vision, intrinsics.fx, distance_mm) if vision.scale_to_camera
-            else replace(vision, decimation=frame_decimation(vision, intrinsics.fx,
-                                                             distance_mm)))
+    used = settings_for_frame(vision, intrinsics.fx, distance_mm)
     return {"width": intrinsics.width, "height": intrinsics.height, "fx": intrinsics.fx,
             "robot_distance_mm": round(distance_mm, 1), "decimation": used.decimation,
             "outlier_min_neighbours": used.outlier_min_neighbours,

@@ -33,11 +33,7 @@ from softforce_cli.vision.filters import (
 )
 from softforce_cli.vision.point_cloud import PointCloud, box_pixels, cloud_from_frame
 from softforce_cli.vision.segmentation import Segmentation, segment_robot
-from softforce_cli.vision.settings import (
-    VisionSettings,
-    frame_decimation,
-    settings_for_camera,
-)
+from softforce_cli.vision.settings import VisionSettings, settings_for_frame
 
 # The table plane is fitted to every third pixel row and column of the crop: a ninth of the
 # pixels, still thousands of table points, so RANSAC and the least-squares refit lose nothing.
@@ -113,9 +109,9 @@ def process_frame(
     depth_mm (h, w) uint16, color (h, w, 3) uint8; model_bounds_mm (2, 3) [min, max] of the
     model's current shape (robot frame); feature_positions_mm (p, 3) and feature_normals
     (p, 3) at the current shape; robot_rgb (3,); excluded_box_mm (6,) the clamped region.
-    The neighbour counts of settings are scaled to the camera (its focal length, and its
-    distance to the model's bounds) unless settings.scale_to_camera is False
-    (settings.settings_for_camera).
+    A fine frame is decimated, and the neighbour counts of settings are scaled to the camera
+    (its focal length, and its distance to the model's bounds) unless
+    settings.scale_to_camera is False (settings.settings_for_frame).
     table_plane: a previous frame's VisionResult.table_plane, to skip fitting it again when
     the camera does not move (saves 2-5 ms a frame); None fits it on this frame.
     """
@@ -141,14 +137,12 @@ def observe_frame(
     them on the next frame while its FE model settles on this one (estimation.lookahead)."""
     clock = _Clock()
     bounds = np.asarray(model_bounds_mm, dtype=float).reshape(2, 3)
-    distance_mm = robot_distance_mm(bounds, robot_from_camera)
-    if settings.scale_to_camera:
-        settings = settings_for_camera(settings, intrinsics.fx, distance_mm)
+    settings = settings_for_frame(settings, intrinsics.fx,
+                                  robot_distance_mm(bounds, robot_from_camera))
     box = crop_box_from_bounds(bounds, settings.crop_margin_mm)
-    factor = frame_decimation(settings, intrinsics.fx, distance_mm)
-    if factor > 1:  # only the crop box's pixels: a fifth of the frame or less
+    if settings.decimation > 1:  # only the crop box's pixels: a fifth of the frame or less
         depth_mm, color, intrinsics = decimate_frame(
-            depth_mm, color, intrinsics, factor,
+            depth_mm, color, intrinsics, settings.decimation,
             box_pixels(box, intrinsics, robot_from_camera))
     decimation_ms = clock.lap("decimation")
     plane = table_plane

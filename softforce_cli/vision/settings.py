@@ -185,9 +185,18 @@ class VisionSettings:
 REFERENCE_FOCAL_PX = 465.6
 
 
-def frame_decimation(settings: VisionSettings, focal_px: float, distance_mm: float) -> int:
-    """The decimation factor for a camera of focal length focal_px seeing the robot from
-    distance_mm: settings.decimation, or decimation.decimation_factor when it is 0."""
+def settings_for_frame(settings: VisionSettings, focal_px: float, distance_mm: float
+                       ) -> VisionSettings:
+    """The settings a frame of a camera of focal length focal_px, seeing the robot from
+    distance_mm, is processed with: settings_for_camera's while settings.scale_to_camera,
+    else the counts as given; the decimation fixed either way."""
+    if settings.scale_to_camera:
+        return settings_for_camera(settings, focal_px, distance_mm)
+    return replace(settings, decimation=_decimation(settings, focal_px, distance_mm))
+
+
+def _decimation(settings: VisionSettings, focal_px: float, distance_mm: float) -> int:
+    """settings.decimation, or decimation.decimation_factor when it is 0 (automatic)."""
     return settings.decimation or decimation_factor(focal_px, distance_mm, settings.voxel_mm)
 
 
@@ -211,7 +220,7 @@ def settings_for_camera(settings: VisionSettings, focal_px: float, distance_mm: 
     1280x720 (80 and 12), 11 of 60 probe contacts went unseen. The result has
     scale_to_camera False.
     """
-    factor = frame_decimation(settings, focal_px, distance_mm)
+    factor = _decimation(settings, focal_px, distance_mm)
 
     def density(focal: float) -> float:
         # a camera placed at the robot (a bad pose) still gets finite counts: the focal ratio
