@@ -207,6 +207,7 @@ def test_bad_input_is_one_line(slack_run, tmp_path):
     away = softforce("diagnose", SLACK, "--robot", SAMPLE_ROBOT, "--calibration", elsewhere,
                      "-o", tmp_path / "b")
     assert_one_line_error(away, "calibration belongs to this camera")
+    assert not (tmp_path / "b").exists()  # refused after the vision: no empty folder left
     # the settings reach the vision: everything within a metre of the table is table
     for text, message in [("[vision]\ntable_clearance_mm = 1000.0\n", "shows the robot"),
                           ("[vision]\ndecimation = 9\n", "decimation"),
@@ -217,13 +218,14 @@ def test_bad_input_is_one_line(slack_run, tmp_path):
                             calibration, "-o", tmp_path / "d", "--settings", settings,
                             "--no-cache")
         assert_one_line_error(refused, message)
-        assert not (tmp_path / "d" / "diagnosis.json").exists()
+        assert not (tmp_path / "d").exists()
     # a recording whose actuation never changes cannot tell physics from the model
     weights = RECORDINGS / "weights.mcap"
     still = softforce("diagnose", weights, "--robot", SAMPLE_ROBOT, "--calibration",
                       pose_calibration(weights.with_suffix("").with_suffix(".truth.json"),
                                        tmp_path), "-o", tmp_path / "c", "--no-cache")
     assert_one_line_error(still, "actuation never changes")
+    assert not (tmp_path / "c").exists()
 
 
 @pytest.mark.parametrize(("stage_name", "calls", "effects"), [

@@ -16,7 +16,7 @@ from softforce_cli.cli import report_terminal as terminal
 from softforce_cli.report.build import build_report
 from softforce_cli.report.export import available_tables, select_columns, table_text
 from softforce_cli.report.loading import ReportError, load_run
-from softforce_cli.report.overview import sense_overview
+from softforce_cli.report.overview import camera_line, sense_overview
 from softforce_cli.report.reconstruction import frame_cable_inputs, sensed_shape
 from softforce_cli.report.truth import compare_run_with_truth
 from tests.cli_runner import assert_one_line_error, softforce
@@ -78,6 +78,21 @@ def test_terminal_summary_shows_the_runs_numbers(html_run, sense_out):
     assert f"{largest:.4f}" in result.stdout  # the force range per contact
     assert "tare" in result.stdout  # the skipped frame and why
     assert "against the ground truth" in result.stdout
+    camera = json.loads((sense_out / "sense.json").read_text())["camera"]
+    # what the vision made of the camera (the 424x240 sample: every pixel, counts 9 / 1)
+    assert (f"camera {camera['width']}x{camera['height']}, fx {camera['fx']:.1f} px" in
+            " ".join(result.stdout.split()))
+    assert "every pixel, neighbours 9 / 1" in " ".join(result.stdout.split())
+
+
+def test_the_camera_line_reads_the_entry_or_nothing():
+    entry = {"width": 1280, "height": 720, "fx": 915.62, "robot_distance_mm": 540.4,
+             "decimation": 2, "outlier_min_neighbours": 20, "contact_min_neighbours": 3}
+    assert camera_line(entry) == ("1280x720, fx 915.6 px, robot 540 mm away: 2x2 pixel "
+                                  "blocks, neighbours 20 / 3")
+    assert camera_line(None) is None
+    assert camera_line({**entry, "fx": "wide"}) is None
+    assert camera_line({"width": 1280}) is None
 
 
 def test_truth_statistics_match_a_direct_computation(sense_out):

@@ -19,7 +19,8 @@ RobotArgument = Annotated[Path, typer.Argument(help="Robot model file (TOML).")]
 
 def parse_actuation(text: str) -> np.ndarray:
     """'5,5,0,0' -> array; one value per cable, in the cable's control units."""
-    from softforce_cli.estimation.setup import parse_numbers
+    from softforce_cli.option_values import parse_numbers
+
     values = parse_numbers(text)
     if values is None:
         raise ModelError(f"--actuation {text!r}: expected comma-separated finite numbers, "

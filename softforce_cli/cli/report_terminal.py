@@ -17,6 +17,8 @@ def sense_summary(overview: Overview, truth: TruthReport | None) -> RenderableTy
         "" if overview.rate_measured else " (from the frames' times)")
     parts.append(Text(f"{overview.frames} frames over {overview.duration_s:.2f} s, "
                       f"{overview.ok} ok, {len(overview.contacts)} contacts; {rate}"))
+    if overview.camera is not None:
+        parts.append(Text(f"camera {overview.camera}"))
     if overview.skipped:
         skipped = RichTable(title="frames skipped", title_justify="left")
         for name in ("status", "frames", "why"):

@@ -22,6 +22,7 @@ from softforce_cli.estimation.session import FrameRange
 from softforce_cli.estimation.settings import load_settings
 from softforce_cli.io.sense_files import check_output_folder
 from softforce_cli.model.robot import load_robot
+from softforce_cli.option_values import parse_numbers
 from softforce_cli.vision.pipeline import robot_distance_mm
 from softforce_cli.vision.settings import VisionSettings, settings_for_frame
 
@@ -58,16 +59,6 @@ class PreparedSensing:
     force: bool
     frame_count: int | None
     resources: contextlib.ExitStack = field(default_factory=contextlib.ExitStack)
-
-
-def parse_numbers(text: str) -> np.ndarray | None:
-    """"1, 2,3" -> (n,) float64 (empty items skipped); None when an item is not a finite
-    number: the comma-separated values of a command-line option."""
-    try:
-        values = np.array([float(v) for v in text.split(",") if v.strip()], dtype=float)
-    except ValueError:
-        return None
-    return values if np.all(np.isfinite(values)) else None
 
 
 def parse_vector(text: str, option: str, count: int = 3) -> np.ndarray:

@@ -48,11 +48,18 @@ def temporary_beside(path: Path, prefix: str, suffix: str) -> tuple[int, Path]:
 
 
 def check_can_write(path: Path) -> None:
-    """OutputError now, not after the work, when no file can be written beside `path` (its
-    folder is made when missing and kept)."""
-    fd, tmp = temporary_beside(Path(path), f".{Path(path).name}.", ".probe")
+    """OutputError now, not after the work, when no file can be written beside `path`.
+
+    The folders made for the probe are removed again, so that a run refused later on (bad
+    input found mid-way) leaves no empty output folder behind."""
+    path = Path(path)
+    missing = [folder for folder in path.parents if not folder.exists()]
+    fd, tmp = temporary_beside(path, f".{path.name}.", ".probe")
     os.close(fd)
     tmp.unlink()
+    for folder in missing:  # deepest first
+        with contextlib.suppress(OSError):
+            folder.rmdir()
 
 
 @contextlib.contextmanager

@@ -125,6 +125,8 @@ def _sense_sections(run: SenseRun, overview: Overview, truth: TruthReport | None
             + ("" if overview.rate_measured else " (from the frames' times)"))
     run_rows = [*inputs, ("frames processed", overview.frames), ("frames ok", overview.ok),
                 ("duration", f"{overview.duration_s:.2f} s"), ("speed", rate)]
+    if overview.camera is not None:
+        run_rows.append(("camera", overview.camera))
     body = page.table_html(None, run_rows)
     if overview.skipped:
         body += page.table_html(("status", "frames", "meaning"), [

@@ -31,7 +31,9 @@ class ContactSpan:
 class Overview:
     """frames: processed; skipped: status -> count for statuses other than ok;
     frames_per_s: the run's own rate (sense.json), else 1000 / mean total_ms;
-    stage_median_ms: stage -> median milliseconds over the frames."""
+    stage_median_ms: stage -> median milliseconds over the frames;
+    camera: what the vision stage made of the camera, one line (None when sense.json has no
+    readable "camera" entry, as before 2026-11-30)."""
 
     frames: int
     ok: int
@@ -41,6 +43,20 @@ class Overview:
     rate_measured: bool
     stage_median_ms: dict[str, float]
     duration_s: float
+    camera: str | None = None
+
+
+def camera_line(entry: object) -> str | None:
+    """sense.json's "camera" entry as "1280x720, fx 915.6 px, robot 540 mm away: 2x2 pixel
+    blocks, neighbours 20 / 3"; None when it is missing or not of that form."""
+    try:
+        blocks = ("every pixel" if entry["decimation"] == 1
+                  else f"{entry['decimation']}x{entry['decimation']} pixel blocks")
+        return (f"{entry['width']}x{entry['height']}, fx {entry['fx']:.1f} px, robot "
+                f"{entry['robot_distance_mm']:.0f} mm away: {blocks}, neighbours "
+                f"{entry['outlier_min_neighbours']} / {entry['contact_min_neighbours']}")
+    except (TypeError, KeyError, ValueError):
+        return None
 
 
 def sense_overview(run: SenseRun) -> Overview:
@@ -66,4 +82,5 @@ def sense_overview(run: SenseRun) -> Overview:
         frames=len(frames), ok=int(run.ok.sum()), skipped=skipped, contacts=tuple(spans),
         frames_per_s=float(rate), rate_measured=measured, stage_median_ms=stages,
         duration_s=float(times.max() - times.min()) if len(times) else 0.0,
+        camera=camera_line(run.header.get("camera")),
     )
