@@ -7,7 +7,7 @@ import pytest
 
 from softforce_cli.calibration.rigid import RigidTransform
 from softforce_cli.estimation.intensity import IntensityProblem, solve_intensities
-from softforce_cli.estimation.sensing import ForceSensor
+from softforce_cli.estimation.sensing import ForceSensor, contact_nodes
 from softforce_cli.estimation.settings import EstimationSettings, SenseSettings
 from softforce_cli.fem.statics import Equilibrium, PointLoads, solve_equilibrium
 from softforce_cli.model.robot import Robot, load_robot
@@ -111,22 +111,28 @@ def test_fe_updates_converge_to_the_applied_load(force_model, relinearize_mm, to
     np.testing.assert_allclose(sensor.tensions, truth.cable_tensions_n, rtol=tolerance)
 
 
+# the camera 600 mm above the robot's base, looking down on it (contact_nodes needs only
+# its position, the transform's translation)
+CAMERA_ABOVE = RigidTransform(np.eye(3), np.array([0.0, 0.0, 600.0]))
+
+
 def test_a_frame_finds_its_contact_again_on_the_surface_it_moved():
     """(ForceSensor.placement, settle) A 1 N push at the upper bar's node moves it 10.3 mm:
-    the pushed point is then nearer another node of the surface the frame starts from, 14 mm
-    away at rest. Placed again after each update (its first node drifts more than
-    RELOCATE_MM further from it than the nearest), the contact reaches the pushed node and
-    the updates the applied load (the same model as the estimator, a free 3D force, as
-    above); left at the first node, the contact stays there."""
+    the camera's line of sight through the pushed point then passes nearest another node
+    of the surface the frame starts from. Placed again after each update, the contact
+    reaches the pushed node and the updates the applied load (the same model as the
+    estimator, a free 3D force, as above); left at the first node, the contact stays there.
+    The camera looks at the bar's face from the side (600 mm out along y): from above, the
+    line of sight through the pushed point meets the pushed node already at rest."""
     robot = load_robot(ROBOT)
+    camera = RigidTransform(np.eye(3), np.array([0.0, 600.0, 90.0]))
     node, force, truth = _pushed_upper_bar(robot, 1.0)
     centre = truth.positions_mm[node][None]
 
     def settled(relocating: bool) -> tuple[np.ndarray, np.ndarray]:
         settings = SenseSettings(estimation=EstimationSettings(
             force_model="3d", relinearize_mm=0.0, rematch_mm=0.0))
-        sensor = ForceSensor(robot, RigidTransform(np.eye(3), np.zeros(3)), ACTUATION,
-                             settings)
+        sensor = ForceSensor(robot, camera, ACTUATION, settings)
         axes = np.full((1, 3), np.nan)
 
         def matches() -> FeatureMatches:
@@ -138,7 +144,7 @@ def test_a_frame_finds_its_contact_again_on_the_surface_it_moved():
         return (np.unique(update.columns.points.node_indices[:, 0]),
                 update.forces_n @ update.columns.directions)
 
-    start_nodes, _, _ = ForceSensor(robot, RigidTransform(np.eye(3), np.zeros(3)), ACTUATION,
+    start_nodes, _, _ = ForceSensor(robot, camera, ACTUATION,
                                     SenseSettings()).placement(centre, np.zeros((1, 3)))
     assert start_nodes[0] != node
     nodes, estimated = settled(relocating=True)
@@ -150,21 +156,69 @@ def test_a_frame_finds_its_contact_again_on_the_surface_it_moved():
     assert apart > 3.0  # the contact left a node's spacing off
 
 
-def test_a_contact_keeps_its_node_until_it_drifts_beyond_the_margin():
-    """(ForceSensor._contact_nodes, RELOCATE_MM) A centre a little nearer a neighbouring
-    node (as under a point force's dent) keeps the contact's node; one that has drifted a
-    whole edge beyond it moves the contact to the nearest node."""
+def _dented_grid() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(positions (m, 3) mm, outward normals (m, 3), surface nodes (m,)) of a flat skin: a
+    5 mm grid at z = 0 facing up, its node at the origin dented 3 mm by a point force, and
+    one node of the body's underside 14 mm below, facing down."""
+    x, y = np.meshgrid(np.arange(-10.0, 15.0, 5.0), np.arange(-10.0, 15.0, 5.0))
+    top = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    top[np.all(top[:, :2] == 0.0, axis=1), 2] = -3.0
+    positions = np.vstack([top, [0.3, 0.0, -14.0]])
+    normals = np.tile([0.0, 0.0, 1.0], (len(positions), 1))
+    normals[-1] = [0.0, 0.0, -1.0]
+    return positions, normals, np.arange(len(positions))
+
+
+def _grid_node(positions: np.ndarray, x: float, y: float) -> int:
+    return int(np.flatnonzero((positions[:, 0] == x) & (positions[:, 1] == y)
+                              & (positions[:, 2] > -5.0))[0])
+
+
+def test_a_contact_acts_where_the_cameras_line_of_sight_meets_the_skin():
+    """(contact_nodes) The camera sees the object above the touch, which the object hides:
+    the contact's centre lies 5.5 mm up the line of sight from the dented node, nearer its
+    neighbour in space (7.1 mm against 8.5). The node on the line is taken, and not the
+    underside's, nearer the line but facing away."""
+    positions, normals, surface = _dented_grid()
+    camera = np.array([0.0, 0.0, 500.0])
+    centre = np.array([[0.5, 0.0, 5.5]])
+    dented, neighbour = _grid_node(positions, 0, 0), _grid_node(positions, 5, 0)
+    distances = np.linalg.norm(positions - centre, axis=1)
+    assert np.argmin(distances) == neighbour  # what the nearest node in space would take
+    assert contact_nodes(centre, camera, positions, normals, surface)[0] == dented
+
+
+def test_a_contact_keeps_its_node_within_the_margin():
+    """(contact_nodes, RELOCATE_MM) A line of sight that has moved 0.8 mm nearer a
+    neighbouring node than the contact's keeps the contact's node; one 2 mm nearer moves
+    it there, as it does for a contact placed afresh."""
+    positions, normals, surface = _dented_grid()
+    camera = np.array([0.0, 0.0, 500.0])
+    dented, neighbour = _grid_node(positions, 0, 0), _grid_node(positions, 5, 0)
+    placed = np.array([dented])
+    for x, kept in ((2.9, dented), (3.5, neighbour)):
+        centre = np.array([[x, 0.0, 5.5]])
+        assert contact_nodes(centre, camera, positions, normals, surface)[0] == neighbour
+        assert contact_nodes(centre, camera, positions, normals, surface, placed)[0] == kept
+
+
+def test_a_held_contact_starts_a_frame_at_the_last_frames_node():
+    """(ForceSensor.placement, placed_nodes) A contact whose line of sight has moved within
+    the margin towards a neighbouring node between two frames stays at its node; a sensor
+    placing it afresh takes the neighbour."""
     robot = load_robot(ROBOT)
-    sensor = ForceSensor(robot, RigidTransform(np.eye(3), np.zeros(3)), ACTUATION,
-                         SenseSettings())
-    positions = sensor.mesh_geometry()[0]
     node = _upper_bar_node(robot)
+    sensor = ForceSensor(robot, CAMERA_ABOVE, ACTUATION, SenseSettings())
+    positions = sensor.mesh_geometry()[0]
+    centre = positions[node][None] + [0.0, 0.0, 5.0]
+    axes = np.full((1, 3), np.nan)
+    assert list(sensor.placement(centre, axes)[0]) == [node]
     faces = robot.mesh.surface_faces
-    neighbour = next(int(v) for v in faces[np.any(faces == node, axis=1)].ravel() if v != node)
-    edge = positions[neighbour] - positions[node]
-    near = positions[node] + 0.6 * edge
-    assert sensor._contact_nodes(near[None])[0] != node
-    assert sensor._contact_nodes(near[None], np.array([node]))[0] == node
-    beyond = positions[node] + 2.0 * edge
-    moved = sensor._contact_nodes(beyond[None], np.array([node]))[0]
-    assert moved != node and moved == sensor._contact_nodes(beyond[None])[0]
+    neighbours = np.unique(faces[np.any(faces == node, axis=1)])
+    neighbour = next(int(v) for v in neighbours
+                     if v != node and abs(positions[v, 2] - positions[node, 2]) < 3.0)
+    # 0.6 of the way across: the neighbour is the nearer by less than the margin
+    shifted = centre + 0.6 * (positions[neighbour] - positions[node]) * [1.0, 1.0, 0.0]
+    fresh = ForceSensor(robot, CAMERA_ABOVE, ACTUATION, SenseSettings())
+    assert sensor.placement(shifted, axes)[0][0] == node
+    assert fresh.placement(shifted, axes)[0][0] != node
