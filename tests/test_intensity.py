@@ -98,7 +98,7 @@ def test_fe_updates_converge_to_the_applied_load(force_model, relinearize_mm, to
     leaves the answer linearised up to that far from the end state: 1.2% on the 3D force
     here, whose tangential components the normal observations hardly fix. This checks the
     algebra and the update loop; accuracy against an independent truth is measured on
-    simulated recordings (test_sense_accuracy.py)."""
+    simulated recordings (test_intensity_truth.py, and benchmarks/study_sensing.py)."""
     robot = load_robot(ROBOT)
     settings = SenseSettings(estimation=EstimationSettings(force_model=force_model,
                                                            relinearize_mm=relinearize_mm))
