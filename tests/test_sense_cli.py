@@ -1,4 +1,5 @@
-"""`softforce sense` as a user runs it: the output files' contract and bad inputs."""
+"""`softforce sense` as a user runs it: the output files' contract, the sample's accuracy, and bad
+inputs."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from softforce_cli.calibration.result import read_calibration
 from softforce_cli.errors import SensingError
 from softforce_cli.estimation.sensing import ForceSensor
 from softforce_cli.estimation.settings import EstimationSettings, SenseSettings
-from softforce_cli.estimation.truth_errors import pose_from_truth
+from softforce_cli.estimation.truth_errors import compare_with_truth, pose_from_truth, read_truth
 from softforce_cli.io.mcap_reader import iter_frames
 from softforce_cli.model.robot import load_robot
 from softforce_cli.vision.settings import VisionSettings
@@ -21,6 +22,7 @@ from tests.cli_runner import assert_one_line_error, softforce
 from tests.conftest import ROOT, SAMPLE_ROBOT
 
 PROBES = ROOT / "sample_data" / "recordings" / "probes.mcap"
+P2_ROBOT = ROOT / "sample_data" / "diamond" / "diamond_p2.toml"
 CONTACTS_HEADER = "frame,time_s,contact,feature,x_mm,y_mm,z_mm,force_n,fx_n,fy_n,fz_n,residual_mm"
 FRAMES_HEADER = ("frame,time_s,status,contacts,points_kept,features_matched,features_hidden,"
                  "fit_rms_mm,total_ms")
@@ -79,6 +81,25 @@ def test_sense_writes_the_three_files_of_the_contract(probes_run):
         assert f"{contact['force_n']:.3f}" in table
     # off a terminal the table's last line ends before the next message (it had joined it)
     assert any(line.startswith("wrote ") for line in result.stderr.splitlines())
+
+
+def test_the_p2_robot_locates_and_weighs_the_sample_probes(tmp_path):
+    """The whole chain against the recording's independent truth (P2 on another mesh,
+    Neo-Hookean, the virtual D415's noise), as the demo senses it with the truth's camera
+    pose: every probe located within 2.5 mm and weighed within 20% (1.1-1.6 mm and 2-15%
+    on 2026-11-30)."""
+    truth_file = PROBES.with_suffix("").with_suffix(".truth.json")
+    result = softforce("sense", PROBES, "--robot", P2_ROBOT, "--calibration",
+                       pose_calibration(truth_file, tmp_path), "--tare", "1", "--updates", "6",
+                       "-o", tmp_path / "out")
+    assert result.returncode == 0, result.stderr
+    document = json.loads((tmp_path / "out" / "sense.json").read_text())
+    comparison = compare_with_truth(document, read_truth(truth_file))
+    assert len(comparison.paired) == 4 and not comparison.missed
+    assert not comparison.phantoms and not comparison.split
+    for contact in comparison.paired:
+        assert contact.location_error_mm < 2.5
+        assert contact.relative_error < 0.20
 
 
 def test_sense_refuses_to_overwrite_without_force(probes_run):
