@@ -175,7 +175,7 @@ def sense_peak_mb(robot: Path, overrides: dict | None = None) -> float:
 
 # (name, robot element, settings overrides): the defaults with either element, and the P1
 # robot with a coarser VoxelGrid (neighbour counts scaled to the points per area it keeps),
-# the vision stage's main cost lever (docs/sensing.md, "Speed and accuracy at 640x480").
+# the vision stage's main cost lever (docs/sensing_studies.md, "Speed and accuracy at 640x480").
 CASES = (
     ("default settings", "p1", {}),
     ("default settings", "p2", {}),

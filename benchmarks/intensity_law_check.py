@@ -8,7 +8,7 @@ axis: no camera, no contact detection) run with four estimators, P2 with 151 fea
 the sample's coarse mesh or the truth's own 6.5 mm mesh, with the corotational law (the
 sample robot's) or the truth's Neo-Hookean one. The last (the truth's mesh and law) is the
 truth's own model: it checks the method itself (an inverse crime on purpose), and the other
-three say how much the mesh and the law each cost. docs/sensing.md ("The material law")
+three say how much the mesh and the law each cost. docs/sensing_studies.md ("The material law")
 quotes the table; out/intensity_law_check/results.json keeps it.
 """
 

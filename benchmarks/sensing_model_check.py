@@ -1,4 +1,4 @@
-"""How much of a probe's misread intensity is the estimator's model (docs/sensing.md).
+"""How much of a probe's misread intensity is the estimator's model (docs/sensing_studies.md).
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/sensing_model_check.py [ROBOT.toml]
 

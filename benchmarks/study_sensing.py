@@ -6,7 +6,7 @@ The truth is `softforce simulate`'s: the robot of sample_data/diamond_truth (ano
 a locking-free element, Neo-Hookean) seen by the virtual D415 with its noise; the estimator is
 the robot file under test (sample_data/diamond/diamond.toml by default), calibrated from
 markers like a user would (`softforce calibrate`). Writes out/study_sensing/results.json and
-the figures in docs/figures/, which docs/sensing.md quotes.
+the figures in docs/figures/, which docs/sensing_studies.md quotes.
 
 - Table III (the paper's): weights of 260-960 mN hung below the apex at a constant cable
   displacement; Young's modulus calibrated on one weight (660 mN, `calibrate --material`),

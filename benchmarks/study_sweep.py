@@ -15,12 +15,12 @@ count` in FEATURE_COUNTS, sensing with `--tare 1 --updates 6` and the truth's ca
 Variants: `--features 51 --noise 0 1` restrict the runs; `--tag NAME --set TABLE.KEY=VALUE`
 (repeatable) senses with other settings, and `--placement faces` with the features on the
 body's faces (docs/robot_model.md), into folders and a results file ending in _NAME,
-leaving the default's results and the figure alone (docs/sensing.md, "Why the probes read
+leaving the default's results and the figure alone (docs/sensing_studies.md, "Why the probes read
 high", compares force models this way).
 
 Writes, under out/study_sweep/ (recordings, robot variants, sense outputs, cached), the
 results to results.json, and the figure docs/figures/sensing_sweep.png, which
-docs/sensing.md ("Noise and feature-count sweep") quotes. Reruns reuse the recordings and
+docs/sensing_studies.md ("Noise and feature-count sweep") quotes. Reruns reuse the recordings and
 the sense runs already done (--resense runs them again).
 """
 
@@ -65,7 +65,7 @@ FEATURE_COUNTS = (25, 51, 101, 151)
 TARE_FRAMES = 1
 UPDATES = 6
 # Each loaded state is held this many frames (fresh sensor noise on each): P2's estimate
-# settles over the first frames of a hold (docs/sensing.md), and more frames give the error
+# settles over the first frames of a hold (docs/sensing_studies.md), and more frames give the error
 # statistics more than one sample per state. With the final unloaded hold, 1 + 4 * 3 = 13
 # frames: 12 true contacts, 3 frames without contact.
 HOLD_FRAMES = 3

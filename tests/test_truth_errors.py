@@ -54,7 +54,7 @@ def test_contacts_pair_within_20_mm_and_phantoms_push_more_than_50_millinewtons(
 
 def test_an_object_seen_as_two_contacts_adds_their_forces():
     """One probe seen as two clusters 10 mm apart, the QP giving one of them no force (the
-    424x240 scenario of docs/sensing.md): the nearer estimate is paired, the other is a part
+    424x240 scenario of docs/sensing_studies.md): the nearer estimate is paired, the other is a part
     of the same contact, not a phantom, and their force vectors add."""
     truth = {"frames": [{"index": 0, "contacts": [_true([52, 1, 58], 0.15)]}]}
     sense = {"frames": [{"frame": 0, "status": "ok", "contacts": [

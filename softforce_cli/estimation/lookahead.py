@@ -4,7 +4,7 @@ A frame's vision up to its contacts (vision.pipeline.observe_frame: about 15 ms 
 needs nothing of the FE model but a crop box, and a frame's FE updates (about 25 ms with the
 reduced P2 model) need nothing of the next frame, so on two cores they run side by side:
 numpy, scipy's KD-trees and open3d spend most of that time in compiled loops that release
-the GIL (the two measured 1.8 times faster together than in turn, docs/sensing.md).
+the GIL (the two measured 1.8 times faster together than in turn, docs/sensing_studies.md).
 
 A worker thread reads the frames, observes each one in the crop box of the configuration
 the sensor last left (one frame old: the box's 20 mm margin is far more than a frame's

@@ -42,7 +42,7 @@ class EstimationSettings:
                          perfect observations, because the bar is far stiffer along itself
                          than across; "cone" reads them right from perfect observations but
                          lets depth noise tilt the force towards the stiff direction, which
-                         inflates it (docs/sensing.md, "Why the probes read high").
+                         inflates it (docs/sensing_studies.md, "Why the probes read high").
     friction_coefficient : 0.5 (cone half-angle 27 degrees), "cone" only: the tangential force
                          is at most this times the normal force (silicone against a rigid
                          probe grips at 0.5-1; the smaller bound limits the tilt noise buys).
@@ -58,7 +58,7 @@ class EstimationSettings:
                          paper does one per frame and lets the configuration converge over
                          the following frames; when a load appears between two frames, the
                          P2 Diamond needs several to follow it: on the 12-location probes
-                         study (3-frame holds, docs/sensing.md) 2 updates read the intensity
+                         study (3-frame holds, docs/sensing_studies.md) 2 updates read the intensity
                          21% off at the median and 75% at the 90th percentile, 4 updates 19%
                          / 39%, 6 updates 18% / 37%, at 1.25, 1.1 and 1.0 frames per second.
     rematch_mm         : 0.1; the frame's next update (matching again at the updated shape)
@@ -86,7 +86,7 @@ class EstimationSettings:
                          the model no longer lies where the camera sees the robot, so later
                          frames would match nothing. The frame is skipped as `lost` and the
                          model starts again from the unloaded equilibrium at the current
-                         actuation. The studies' fits stay within 6 mm (docs/sensing.md).
+                         actuation. The studies' fits stay within 6 mm (docs/sensing_studies.md).
     regularization     : relative Tikhonov weight on contact forces (estimation.intensity).
     """
 

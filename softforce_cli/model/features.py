@@ -38,7 +38,7 @@ def face_nodes(nodes_mm: np.ndarray, surface_faces: np.ndarray,
     vertex normal is within max_angle_deg of the normal of every triangle they belong to.
     On an edge the vertex normal is the mean of the two faces' and no surface is normal to
     it: a line along it leaves the body at the edge, where the camera's nearest point moves
-    as the edge turns (docs/sensing.md, "Feature points on faces").
+    as the edge turns (docs/sensing_studies.md, "Feature points on faces").
     """
     normals = vertex_normals(nodes_mm, surface_faces)
     triangle_normals = face_normals(nodes_mm, surface_faces)

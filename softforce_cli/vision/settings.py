@@ -107,7 +107,7 @@ class VisionSettings:
                              noise change which pixel is nearest, and the Diamond's features
                              sit on the bars' edges, where the line leaves the body
                              diagonally and the nearest point's depth along it depends on
-                             how close to the edge the camera sampled (docs/sensing.md, "Why
+                             how close to the edge the camera sampled (docs/sensing_studies.md, "Why
                              the probes read high"; 1.5 mm there: median intensity error
                              8-12% instead of 8-18% over four noise draws). Off by default:
                              with it, calibrate --material's one-frame fit on the sample
