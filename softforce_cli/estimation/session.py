@@ -79,7 +79,8 @@ def run_sensing(
     stream = observed_frames(frames, sensor) if look_ahead else (
         (*item, None) for item in frames)
     # the look-ahead's two threads keep both cores busy: BLAS threads on top would only
-    # contend for them (the reduced P2 model's frames took 2.6 times as long, docs/sensing_studies.md)
+    # contend for them (the reduced P2 model's frames took 2.6 times as long,
+    # docs/sensing_studies.md)
     blas = threadpool_limits(limits=1, user_api="blas") if look_ahead else nullcontext()
     began = time.perf_counter()
     with blas:
