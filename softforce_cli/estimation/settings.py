@@ -49,8 +49,9 @@ class EstimationSettings:
     max_axis_angle_deg : 60; "axis" only: an object axis further than this from the inward
                          normal is not a push into the surface (an object lying along the
                          robot, or a misfit): the normal is used instead.
-    contact_at         : "node": a detected contact acts at the surface node nearest to its
-                         centre; "feature": at the nearest feature point, as in the paper. The
+    contact_at         : "node": a detected contact acts at the surface node on the camera's
+                         line of sight through its centre (estimation.sensing.contact_nodes);
+                         "feature": at the nearest feature point, as in the paper. The
                          nodes are 3-6 mm apart, the 51 features about 30 mm: a force moved by
                          15 mm along a bar changes the bending it causes by tens of percent.
     updates_per_frame  : 6; FE updates (linearise, QP, eq. 6) per frame, at most (a frame
