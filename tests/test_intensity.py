@@ -1,4 +1,5 @@
-"""Force intensities (eq. 10-14): the QP's algebra, and the FE update loop on a known load."""
+"""Force intensities (eq. 10-14): the QP's algebra, the FE update loop on a known load, and
+where a detected contact acts (estimation.sensing.contact_nodes)."""
 
 from pathlib import Path
 
