@@ -8,7 +8,7 @@ import pytest
 
 from softforce_cli.calibration.rigid import RigidTransform
 from softforce_cli.estimation.intensity import IntensityProblem, solve_intensities
-from softforce_cli.estimation.sensing import ForceSensor, contact_nodes
+from softforce_cli.estimation.sensing import CONTACT_REACH_MM, ForceSensor, contact_nodes
 from softforce_cli.estimation.settings import EstimationSettings, SenseSettings
 from softforce_cli.fem.statics import Equilibrium, PointLoads, solve_equilibrium
 from softforce_cli.model.robot import Robot, load_robot
@@ -160,11 +160,11 @@ def test_a_frame_finds_its_contact_again_on_the_surface_it_moved():
 def _dented_grid() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(positions (m, 3) mm, outward normals (m, 3), surface nodes (m,)) of a flat skin: a
     5 mm grid at z = 0 facing up, its node at the origin dented 3 mm by a point force, and
-    one node of the body's underside 14 mm below, facing down."""
+    one node of the skin's underside 6 mm below, facing down."""
     x, y = np.meshgrid(np.arange(-10.0, 15.0, 5.0), np.arange(-10.0, 15.0, 5.0))
     top = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
     top[np.all(top[:, :2] == 0.0, axis=1), 2] = -3.0
-    positions = np.vstack([top, [0.3, 0.0, -14.0]])
+    positions = np.vstack([top, [0.3, 0.0, -6.0]])
     normals = np.tile([0.0, 0.0, 1.0], (len(positions), 1))
     normals[-1] = [0.0, 0.0, -1.0]
     return positions, normals, np.arange(len(positions))
@@ -186,7 +186,25 @@ def test_a_contact_acts_where_the_cameras_line_of_sight_meets_the_skin():
     dented, neighbour = _grid_node(positions, 0, 0), _grid_node(positions, 5, 0)
     distances = np.linalg.norm(positions - centre, axis=1)
     assert np.argmin(distances) == neighbour  # what the nearest node in space would take
+    underside = len(positions) - 1
+    sight = (centre[0] - camera) / np.linalg.norm(centre[0] - camera)
+    off_line = np.linalg.norm(np.cross(positions - centre, sight), axis=1)
+    assert off_line[underside] < off_line[dented]  # nearer the line, within reach, facing away
+    assert distances[underside] < distances.min() + CONTACT_REACH_MM
     assert contact_nodes(centre, camera, positions, normals, surface)[0] == dented
+
+
+def test_a_hidden_tip_takes_the_node_nearest_in_space():
+    """(contact_nodes, sighted) A hidden tip (vision.contacts.occluded_tips) is found on the
+    robot's surface, on a side the camera may not face: just under the underside node, it
+    acts there, where a contact seen from the camera would be put on the skin above."""
+    positions, normals, surface = _dented_grid()
+    camera = np.array([0.0, 0.0, 500.0])
+    tip = np.array([[0.3, 0.0, -7.0]])
+    underside = len(positions) - 1
+    assert contact_nodes(tip, camera, positions, normals, surface)[0] != underside
+    hidden = contact_nodes(tip, camera, positions, normals, surface, sighted=np.array([False]))
+    assert hidden[0] == underside
 
 
 def test_a_contact_keeps_its_node_within_the_margin():

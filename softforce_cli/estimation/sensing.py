@@ -232,10 +232,11 @@ class ForceSensor:
         if self.auto_tare and len(vision.contacts.centres_mm):
             self.tare_left = 0
         taring = self.tare_left > 0
-        centres = np.zeros((0, 3)) if taring or self.known_contact is not None \
-            else vision.contacts.centres_mm
+        detected = vision.contacts if not taring and self.known_contact is None else None
+        centres = np.zeros((0, 3)) if detected is None else detected.centres_mm
         contact_nodes, axes, relocate = self.placement(
-            centres, self._contact_axes(centres, segmentation))
+            centres, self._contact_axes(centres, segmentation),
+            None if detected is None else detected.occluded)
         clock = _Clock(timings)
         saved = (self.state, self.tensions)
         try:
@@ -346,20 +347,24 @@ class ForceSensor:
             return np.full((len(centres_mm), 3), np.nan)
         return object_axes(centres_mm, segmentation.objects.points_mm)
 
-    def placement(self, centres_mm: np.ndarray, axes: np.ndarray
+    def placement(self, centres_mm: np.ndarray, axes: np.ndarray,
+                  occluded: np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray, Callable[[], tuple[np.ndarray, np.ndarray]]]:
         """The distinct nodes (k,) where the contacts at centres_mm (c, 3) act at the
         current configuration, the axes (k, 3) of the contacts (axes (c, 3)) they were first
         found for, and the callable that places them again on the surface an update moved
-        (settle's relocate); the nodes are contact_nodes'. A contact starts from the node
+        (settle's relocate); the nodes are contact_nodes', occluded (c,) bool the contacts
+        that are hidden tips (vision.contacts.occluded_tips: already on the robot's surface,
+        placed by distance). A contact starts from the node
         of the last frame's contacts nearest it, kept within the same margin, so that a
         held contact keeps its node from frame to frame (fewer FE linearisations: 74
         against 78 on the 12-location probes at 1280x720)."""
-        placed = self._contact_nodes(centres_mm, self._carried(centres_mm))
+        sighted = np.ones(len(centres_mm), bool) if occluded is None else ~np.asarray(occluded)
+        placed = self._contact_nodes(centres_mm, self._carried(centres_mm), sighted)
 
         def relocate() -> tuple[np.ndarray, np.ndarray]:
             nonlocal placed
-            placed = self._contact_nodes(centres_mm, placed)
+            placed = self._contact_nodes(centres_mm, placed, sighted)
             self.placed_nodes = placed
             return _acting(placed, axes)
 
@@ -375,12 +380,13 @@ class ForceSensor:
         _, nearest = cKDTree(carried).query(centres_mm)
         return self.placed_nodes[np.asarray(nearest, dtype=np.int64)]
 
-    def _contact_nodes(self, centres_mm: np.ndarray, placed: np.ndarray | None = None
-                       ) -> np.ndarray:
+    def _contact_nodes(self, centres_mm: np.ndarray, placed: np.ndarray | None = None,
+                       sighted: np.ndarray | None = None) -> np.ndarray:
         """(c,) the mesh node where each contact at centres_mm (c, 3) acts at the current
         configuration (contact_nodes: the surface node on the camera's line of sight
-        through it), or with contact_at = "feature" the paper's nearest feature point;
-        placed (c,) the nodes before, kept within the margin."""
+        through it where sighted (c,), the nearest elsewhere), or with contact_at =
+        "feature" the paper's nearest feature point; placed (c,) the nodes before, kept
+        within the margin."""
         if not len(centres_mm):
             return np.zeros(0, dtype=np.int64)
         positions, normals = self.mesh_geometry()
@@ -388,7 +394,7 @@ class ForceSensor:
             return self.robot.feature_nodes[
                 nearest_features(centres_mm, positions[self.robot.feature_nodes])]
         return contact_nodes(centres_mm, self.transform.translation_mm, positions, normals,
-                             self.robot.mesh.surface_nodes, placed)
+                             self.robot.mesh.surface_nodes, placed, sighted)
 
     @property
     def tare_offsets_mm(self) -> np.ndarray:
@@ -520,7 +526,8 @@ class _Clock:
 
 def contact_nodes(centres_mm: np.ndarray, camera_mm: np.ndarray, positions_mm: np.ndarray,
                   normals: np.ndarray, surface_nodes: np.ndarray,
-                  placed: np.ndarray | None = None) -> np.ndarray:
+                  placed: np.ndarray | None = None,
+                  sighted: np.ndarray | None = None) -> np.ndarray:
     """(c,) the surface node under each contact centre (c, 3) mm, seen from the camera at
     camera_mm (3,): among the surface nodes within CONTACT_REACH_MM of the centre's nearest
     that face the camera, the one nearest the line of sight through the centre.
@@ -533,8 +540,11 @@ def contact_nodes(centres_mm: np.ndarray, camera_mm: np.ndarray, positions_mm: n
     a point force's dent under a node moved the contact to a neighbour on every other frame;
     along the line of sight a dent changes nothing. placed (c,): the contacts' nodes before
     (the last update's, or the last frame's), each kept while it faces the camera, within
-    the reach, and no more than RELOCATE_MM further from the line than the best.
-    positions_mm, normals (m, 3): the mesh's nodes and outward unit normals."""
+    the reach, and no more than RELOCATE_MM further from the line than the best. sighted
+    (c,) bool, default all: contacts that are not (a hidden tip found on the robot's
+    surface, maybe on a side the camera does not face) take the node nearest in space,
+    under the same margin. positions_mm, normals (m, 3): the mesh's nodes and outward unit
+    normals."""
     surface = positions_mm[surface_nodes]
     tree = cKDTree(surface)
     nearest_mm, _ = tree.query(centres_mm)
@@ -543,16 +553,20 @@ def contact_nodes(centres_mm: np.ndarray, camera_mm: np.ndarray, positions_mm: n
     chosen = np.empty(len(centres_mm), dtype=np.int64)
     for k, reach in enumerate(tree.query_ball_point(centres_mm, nearest_mm + CONTACT_REACH_MM)):
         reach = np.asarray(reach, dtype=np.int64)
-        candidates = reach[normals[surface_nodes[reach]] @ sight[k] < 0.0]
-        if not len(candidates):  # seen edge-on: the nearest node
-            candidates = reach[[np.argmin(np.linalg.norm(surface[reach] - centres_mm[k],
-                                                         axis=1))]]
-        offset = surface[candidates] - centres_mm[k]
-        off_line = np.linalg.norm(offset - np.outer(offset @ sight[k], sight[k]), axis=1)
+        if sighted is not None and not sighted[k]:  # by the distance in space
+            candidates = reach
+            distance_mm = np.linalg.norm(surface[reach] - centres_mm[k], axis=1)
+        else:
+            candidates = reach[normals[surface_nodes[reach]] @ sight[k] < 0.0]
+            if not len(candidates):  # seen edge-on: the nearest node
+                candidates = reach[[np.argmin(np.linalg.norm(surface[reach] - centres_mm[k],
+                                                             axis=1))]]
+            offset = surface[candidates] - centres_mm[k]  # by the distance from the line
+            distance_mm = np.linalg.norm(offset - np.outer(offset @ sight[k], sight[k]), axis=1)
         nodes = surface_nodes[candidates]
-        chosen[k] = nodes[np.argmin(off_line)]
+        chosen[k] = nodes[np.argmin(distance_mm)]
         if (placed is not None and placed[k] in nodes
-                and off_line[nodes == placed[k]][0] <= off_line.min() + RELOCATE_MM):
+                and distance_mm[nodes == placed[k]][0] <= distance_mm.min() + RELOCATE_MM):
             chosen[k] = placed[k]
     return chosen
 
