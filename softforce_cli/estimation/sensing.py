@@ -355,10 +355,10 @@ class ForceSensor:
         found for, and the callable that places them again on the surface an update moved
         (settle's relocate); the nodes are contact_nodes', occluded (c,) bool the contacts
         that are hidden tips (vision.contacts.occluded_tips: already on the robot's surface,
-        placed by distance). A contact starts from the node
-        of the last frame's contacts nearest it, kept within the same margin, so that a
-        held contact keeps its node from frame to frame (fewer FE linearisations: 74
-        against 78 on the 12-location probes at 1280x720)."""
+        placed by distance). A contact starts from the node of the last frame's contacts
+        nearest it, kept within the same margin, so that a held contact keeps its node from
+        frame to frame (fewer FE linearisations: 74 against 78 on the 12-location probes at
+        1280x720)."""
         sighted = np.ones(len(centres_mm), bool) if occluded is None else ~np.asarray(occluded)
         placed = self._contact_nodes(centres_mm, self._carried(centres_mm), sighted)
 
