@@ -359,7 +359,7 @@ class ForceSensor:
         nearest it, kept within the same margin, so that a held contact keeps its node from
         frame to frame (fewer FE linearisations: 74 against 78 on the 12-location probes at
         1280x720)."""
-        sighted = np.ones(len(centres_mm), bool) if occluded is None else ~np.asarray(occluded)
+        sighted = None if occluded is None else ~np.asarray(occluded, dtype=bool)
         placed = self._contact_nodes(centres_mm, self._carried(centres_mm), sighted)
 
         def relocate() -> tuple[np.ndarray, np.ndarray]:
