@@ -1,6 +1,6 @@
 """Algorithm 2 (contact points, Euclidean clusters) and location mapping, on known layouts;
 contacts whose tip the camera cannot see (occluded_tips), on synthetic clouds and the sample
-recording."""
+recording; where a contact touches the observed skin (touch_points)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from softforce_cli.calibration.rigid import RigidTransform
 from softforce_cli.io.mcap_reader import iter_frames
@@ -17,6 +18,7 @@ from softforce_cli.vision.contacts import (
     euclidean_clusters,
     merge_close_clusters,
     nearest_features,
+    touch_points,
 )
 from softforce_cli.vision.pipeline import process_frame
 from softforce_cli.vision.point_cloud import PointCloud, cloud_from_frame
@@ -317,3 +319,48 @@ def test_clusters_closer_than_the_merge_distance_are_one_contact():
     merged, merged_sizes = merge_close_clusters(chain, np.array([1, 1, 1]), 10.0)
     np.testing.assert_allclose(merged, [[8.0, 0, 0]])
     assert merge_close_clusters(centres, sizes, 0.0)[0] is centres
+
+
+def _sloped_skin(rng, slope_deg: float, hole_mm: float, noise_mm: float) -> np.ndarray:
+    """Points 1 mm apart on the plane z = tan(slope) x through the origin, with the disc of
+    hole_mm about the origin missing (the probe's shadow) and Gaussian depth noise."""
+    points = _plane(half=25.0)
+    points[:, 2] = np.tan(np.radians(slope_deg)) * points[:, 0]
+    points = points[np.linalg.norm(points, axis=1) > hole_mm]
+    points[:, 2] += rng.normal(0.0, noise_mm, len(points))
+    return points
+
+
+CAMERA_ABOVE = np.array([10.0, -20.0, 500.0])
+
+
+def test_the_touch_is_where_the_line_of_sight_meets_the_skin_around_the_shadow():
+    rng = np.random.default_rng(3)
+    skin = _sloped_skin(rng, 35.0, 5.0, 0.4)
+    sight = -CAMERA_ABOVE / np.linalg.norm(CAMERA_ABOVE)  # through the touch at the origin
+    centres = np.array([-5.5 * sight])  # the object's points hide the touch, in front of it
+    # the model's node: on a surface 3 mm above the real one and 2 mm aside
+    node = np.array([[2.0, 0.0, 3.0 + np.tan(np.radians(35.0)) * 2.0]])
+    touch = touch_points(centres, CAMERA_ABOVE, cKDTree(skin), node)
+    assert np.linalg.norm(touch[0]) < 0.3  # against the node's 3.5 mm
+    # no robot points there: the node
+    far = cKDTree(skin + np.array([0.0, 0.0, 40.0]))
+    np.testing.assert_array_equal(touch_points(centres, CAMERA_ABOVE, far, node), node)
+    assert touch_points(np.zeros((0, 3)), CAMERA_ABOVE, cKDTree(skin),
+                        np.zeros((0, 3))).shape == (0, 3)
+
+
+def test_a_fold_or_a_skin_seen_edge_on_keeps_the_node():
+    rng = np.random.default_rng(4)
+    sight = -CAMERA_ABOVE / np.linalg.norm(CAMERA_ABOVE)
+    centres = np.array([-5.5 * sight])
+    node = np.array([[1.0, 1.0, 2.0]])
+    # two faces meeting at the line (a ridge): no one plane within TOUCH_MAX_RMS_MM
+    left, right = _sloped_skin(rng, 50.0, 0.0, 0.2), _sloped_skin(rng, -50.0, 0.0, 0.2)
+    ridge = np.vstack([left[left[:, 0] < 0.0], right[right[:, 0] >= 0.0]])
+    np.testing.assert_array_equal(touch_points(centres, CAMERA_ABOVE, cKDTree(ridge), node),
+                                  node)
+    # a wall along the line of sight, seen edge-on
+    wall = _plane(half=25.0)[:, [2, 0, 1]]
+    np.testing.assert_array_equal(touch_points(centres, CAMERA_ABOVE, cKDTree(wall), node),
+                                  node)

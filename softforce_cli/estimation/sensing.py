@@ -32,7 +32,7 @@ from softforce_cli.fem.coordinates import State
 from softforce_cli.fem.statics import solve_equilibrium
 from softforce_cli.model.mesh import vertex_normals
 from softforce_cli.model.robot import Robot
-from softforce_cli.vision.contacts import nearest_features, object_axes
+from softforce_cli.vision.contacts import nearest_features, object_axes, touch_points
 from softforce_cli.vision.feature_matching import FeatureMatches, match_features
 from softforce_cli.vision.filters import crop_box_from_bounds
 from softforce_cli.vision.pipeline import (
@@ -262,7 +262,9 @@ class ForceSensor:
         if taring:  # a frame whose fit diverged (lost) does not join the tare
             self.add_tare(outcome)
         status = "tare" if taring else "ok"
-        contacts = () if taring else self._contacts(outcome)
+        contacts = () if taring else self._contacts(
+            outcome, centres, None if detected is None else ~detected.occluded,
+            segmentation.robot_tree)
         clock.lap("update")
         matches = outcome.matches
         return FrameEstimate(
@@ -489,12 +491,27 @@ class ForceSensor:
             self.relinearizations += 1
         return linear
 
-    def _contacts(self, update: Update) -> tuple[ContactEstimate, ...]:
+    def _contacts(self, update: Update, centres_mm: np.ndarray, sighted: np.ndarray | None,
+                  robot_tree: cKDTree) -> tuple[ContactEstimate, ...]:
+        """The update's contacts, each reported where the camera's line of sight through
+        its centre meets the observed skin (vision.contacts.touch_points) where sighted
+        (c,) bool (None: every contact), else at its node; centres_mm (c, 3): the detected
+        contacts the update placed (none for a known contact), robot_tree the frame's robot
+        points. The force acts at the node either way."""
         columns = update.columns
         points = self.attached_mm(columns.points)
         feature_positions, _ = self.feature_geometry()
         matched_positions = feature_positions[update.matches.matched]
         positions = np.array([points[group[0]] for group in columns.groups]).reshape(-1, 3)
+        if len(centres_mm):
+            # each group's node, and the first contact centre placed on it
+            nodes = columns.points.node_indices[[group[0] for group in columns.groups], 0]
+            placed = nodes[:, None] == self.placed_nodes[None]
+            centre = placed.argmax(axis=1)
+            seen = placed.any(axis=1) & (True if sighted is None else sighted[centre])
+            touches = touch_points(centres_mm[centre], self.transform.translation_mm,
+                                   robot_tree, positions)
+            positions = np.where(seen[:, None], touches, positions)
         indices = self.tracker.assign(positions)
         features = nearest_features(positions, feature_positions)
         estimates = []
