@@ -226,6 +226,25 @@ def test_a_rod_stopping_short_of_the_robot_is_no_contact():
                                camera_mm=CAMERA_MM)) == 0
 
 
+def test_a_rod_seen_in_pieces_goes_on_through_them():
+    # the rod's last 13 mm hidden, beyond occluded_tip_mm, but a piece of it seen 5-8 mm from
+    # the tip as a colour region of its own (at 424x240 a probe's tip splits off so): the
+    # axis goes on from the piece and meets the face at the tip
+    robot, rod = _tilted_rod_scene(0.0, hidden_mm=13.0)
+    assert len(detect_contacts(_segmentation(robot, rod), VisionSettings(),
+                               camera_mm=CAMERA_MM)) == 0
+    piece = _rod_seen_from_camera(TIP, ROD_AXIS, 5.0, length_mm=8.0)
+    found = detect_contacts(_segmentation(robot, rod, piece), VisionSettings(),
+                            camera_mm=CAMERA_MM)
+    assert len(found) == 1 and found.occluded.all()
+    assert np.linalg.norm(found.centres_mm[0] - TIP) < 2.0
+    # a piece that touches is Algorithm 2's contact, and the rod gives no second one
+    touching = _rod_seen_from_camera(TIP, ROD_AXIS, 1.0, length_mm=4.0)
+    found = detect_contacts(_segmentation(robot, rod, touching), VisionSettings(),
+                            camera_mm=CAMERA_MM)
+    assert len(found) == 1 and not found.occluded.any()
+
+
 def test_a_rod_touching_in_view_is_algorithm_2s_contact_only():
     # the same rod seen down to its tip's side: Algorithm 2 finds it, and its axis is not
     # extended into a second contact
