@@ -362,6 +362,11 @@ def test_the_touch_is_where_the_line_of_sight_meets_the_skin_around_the_shadow()
     node = np.array([[2.0, 0.0, 3.0 + np.tan(np.radians(35.0)) * 2.0]])
     touch = touch_points(centres, CAMERA_ABOVE, cKDTree(skin), node)
     assert np.linalg.norm(touch[0]) < 0.3  # against the node's 3.5 mm
+    # the skin, not the model, says where: a node 15 mm off (a model far from the body)
+    # changes nothing
+    aside = node + np.array([15.0, 0.0, 0.0])
+    np.testing.assert_array_equal(touch_points(centres, CAMERA_ABOVE, cKDTree(skin), aside),
+                                  touch)
     # no robot points there: the node
     far = cKDTree(skin + np.array([0.0, 0.0, 40.0]))
     np.testing.assert_array_equal(touch_points(centres, CAMERA_ABOVE, far, node), node)

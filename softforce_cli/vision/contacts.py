@@ -143,16 +143,18 @@ def nearest_features(centres_mm: np.ndarray, feature_positions_mm: np.ndarray) -
     return np.asarray(index, dtype=np.int64)
 
 
-# Where a contact is reported: the robot points within this of the camera's line of sight
-# through its centre, and within TOUCH_REACH_MM of the model's contact node, give the skin's
-# plane there. The object hides the touch itself, so the points lie around it; 6 mm takes
-# a ring of them beyond a 10 mm probe's shadow (4 mm: the same within 0.2 mm on the
-# 12-location probes, docs/sensing_studies.md).
+# Where a contact is reported: the robot points within TOUCH_RADIUS_MM of the camera's line
+# of sight through its centre, from TOUCH_BEFORE_MM before the centre to TOUCH_BEHIND_MM
+# behind it, give the skin's plane there. The object hides the touch itself, so the points
+# lie around it; 6 mm takes a ring of them beyond a 10 mm probe's shadow (4 mm: the same
+# within 0.2 mm on the 12-location probes, docs/sensing_studies.md). The touch lay 4-7 mm
+# behind the centre there; the segment stops short of another arm seen behind.
 TOUCH_RADIUS_MM = 6.0
-TOUCH_REACH_MM = 10.0
-# Fewer robot points than this, a plane seen within this cosine of edge-on, or points
-# further than TOUCH_MAX_RMS_MM from their plane (two faces, not one: the D415's noise
-# leaves 0.5-0.9 mm there) keep the model's node.
+TOUCH_BEFORE_MM = 5.0
+TOUCH_BEHIND_MM = 15.0
+# Fewer robot points than this, a plane seen within this cosine of edge-on, points further
+# than TOUCH_MAX_RMS_MM from their plane (two faces, not one: the D415's noise leaves
+# 0.5-0.9 mm there), or a plane the line meets off the segment keep the model's node.
 TOUCH_MIN_POINTS = 8
 TOUCH_MIN_COSINE = 0.3
 TOUCH_MAX_RMS_MM = 1.5
@@ -165,27 +167,31 @@ def touch_points(centres_mm: np.ndarray, camera_mm: np.ndarray, robot_tree: cKDT
     points do not show it.
 
     The skin there is the plane fitted (least squares) to the robot points of robot_tree
-    within TOUCH_RADIUS_MM of the line and TOUCH_REACH_MM of the node. A contact centre is
-    the mean of the object points seen touching, and the touch lies behind it on that line
-    (estimation.sensing.contact_nodes); the model's node there sits where the model's
-    surface is, which a body other than the model's (a finer mesh, a sagging rest shape)
-    and the model's own dent under a point force put millimetres from the real touch: on
-    the 12-location probes of a mesh-converged body, 4.0 mm at the median against 1.5 mm
-    for the point on the observed skin (docs/sensing_studies.md). camera_mm (3,): the
-    camera's position in the robot frame.
+    within TOUCH_RADIUS_MM of the line, from TOUCH_BEFORE_MM before the centre to
+    TOUCH_BEHIND_MM behind it. A contact centre is the mean of the object points seen
+    touching, and the touch lies behind it on that line (estimation.sensing.contact_nodes);
+    the model's node there sits where the model's surface is, which a body other than the
+    model's (a finer mesh, a sagging rest shape) and the model's own dent under a point
+    force put millimetres from the real touch: on the 12-location probes of a mesh-converged
+    body, 4.0 mm at the median against 1.6 mm for the point on the observed skin
+    (docs/sensing_studies.md). camera_mm (3,): the camera's position in the robot frame.
     """
     centres = np.asarray(centres_mm, dtype=float).reshape(-1, 3)
-    nodes = np.asarray(nodes_mm, dtype=float).reshape(-1, 3)
-    touches = nodes.copy()
+    touches = np.asarray(nodes_mm, dtype=float).reshape(-1, 3).copy()
     if not len(centres) or robot_tree.n == 0:
         return touches
     sight = centres - np.asarray(camera_mm, dtype=float)
     sight /= np.linalg.norm(sight, axis=1, keepdims=True)
+    half = 0.5 * (TOUCH_BEFORE_MM + TOUCH_BEHIND_MM)
+    middles = centres + (half - TOUCH_BEFORE_MM) * sight
     points_mm = robot_tree.data
-    for k, near in enumerate(robot_tree.query_ball_point(nodes, TOUCH_REACH_MM)):
+    for k, near in enumerate(robot_tree.query_ball_point(middles, np.hypot(half,
+                                                                           TOUCH_RADIUS_MM))):
         offset = points_mm[near] - centres[k]
-        across = np.linalg.norm(offset - np.outer(offset @ sight[k], sight[k]), axis=1)
-        skin = points_mm[near][across < TOUCH_RADIUS_MM]
+        along = offset @ sight[k]
+        across = np.linalg.norm(offset - np.outer(along, sight[k]), axis=1)
+        skin = points_mm[near][(across < TOUCH_RADIUS_MM) & (along >= -TOUCH_BEFORE_MM)
+                               & (along <= TOUCH_BEHIND_MM)]
         if len(skin) < TOUCH_MIN_POINTS:
             continue
         mean = skin.mean(axis=0)
@@ -195,9 +201,9 @@ def touch_points(centres_mm: np.ndarray, camera_mm: np.ndarray, robot_tree: cKDT
         if (abs(facing) < TOUCH_MIN_COSINE
                 or spread[2] / np.sqrt(len(skin)) > TOUCH_MAX_RMS_MM):
             continue
-        touch = centres[k] + ((mean - centres[k]) @ normal / facing) * sight[k]
-        if np.linalg.norm(touch - nodes[k]) <= TOUCH_REACH_MM:
-            touches[k] = touch
+        depth = (mean - centres[k]) @ normal / facing
+        if -TOUCH_BEFORE_MM <= depth <= TOUCH_BEHIND_MM:
+            touches[k] = centres[k] + depth * sight[k]
     return touches
 
 
