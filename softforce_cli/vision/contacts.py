@@ -147,7 +147,7 @@ def nearest_features(centres_mm: np.ndarray, feature_positions_mm: np.ndarray) -
 # of sight through its centre, from TOUCH_BEFORE_MM before the centre to TOUCH_BEHIND_MM
 # behind it, give the skin's plane there. The object hides the touch itself, so the points
 # lie around it; 6 mm takes a ring of them beyond a 10 mm probe's shadow (4 mm: the same
-# within 0.2 mm on the 12-location probes, docs/sensing_studies.md). The touch lay 4-7 mm
+# within 0.25 mm on the 12-location probes, docs/sensing_studies.md). The touch lay 4-7 mm
 # behind the centre there; the segment stops short of another arm seen behind.
 TOUCH_RADIUS_MM = 6.0
 TOUCH_BEFORE_MM = 5.0
