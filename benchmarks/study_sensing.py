@@ -150,10 +150,12 @@ def material_calibration(robot_file: Path, pose: Path, weights: Path) -> Path:
     from softforce_cli.calibration.result import read_calibration
 
     k = 1 + WEIGHTS_N.index(CALIBRATION_WEIGHT_N)
+    robot = load_robot(robot_file)
     fit = fit_young_modulus(
-        load_robot(robot_file), read_calibration(pose).robot_from_camera,
-        static_frames(weights, f"{k * WEIGHT_HOLD_FRAMES}:{(k + 1) * WEIGHT_HOLD_FRAMES}"),
-        static_frames(weights, f"0:{WEIGHT_HOLD_FRAMES}"),
+        robot, read_calibration(pose).robot_from_camera,
+        static_frames(weights, f"{k * WEIGHT_HOLD_FRAMES}:{(k + 1) * WEIGHT_HOLD_FRAMES}",
+                      robot),
+        static_frames(weights, f"0:{WEIGHT_HOLD_FRAMES}", robot),
         KnownLoad(np.array(APEX_LOAD_POINT), np.array([0.0, 0.0, -CALIBRATION_WEIGHT_N])),
         load_settings(None))
     document = json.loads(pose.read_text())

@@ -123,3 +123,36 @@ def test_a_small_step_at_the_root_is_reported_as_the_interval(monkeypatch):
     fit = material.fit_young_modulus(load_robot(SAMPLE_ROBOT), None, [], [], load, None)
     assert fit.young_modulus_mpa == pytest.approx(root, rel=1e-2)
     assert fit.ci95_mpa == pytest.approx((root / 1.05, root / 0.95), rel=1e-2)
+
+
+def _robot_copy(folder, *replacements):
+    """The sample robot file in folder with its mesh path absolute and each (old, new) of
+    replacements made once."""
+    text = SAMPLE_ROBOT.read_text().replace(
+        'path = "diamond_coarse.vtu"', f'path = "{SAMPLE_ROBOT.parent / "diamond_coarse.vtu"}"')
+    for old, new in replacements:
+        assert old in text
+        text = text.replace(old, new, 1)
+    path = folder / "robot.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize(("replacement", "fragment"), [
+    (('name = "north"', 'name = "top"'), "are not the robot's cables"),
+    (('control = "displacement"', 'control = "force"'), "displacement-controlled but"),
+])
+def test_a_recording_for_other_cables_is_refused(fitted, tmp_path, replacement, fragment):
+    """A recording whose /robot/actuation names another robot's cables, or another control
+    mode, is refused with one line by the material calibration (which read the inputs by
+    position before) as by sense, rather than driving the wrong cables."""
+    _, _, folder = fitted
+    robot = _robot_copy(tmp_path, replacement)
+    material = softforce("calibrate", "--material", "--robot", robot, "--calibration",
+                         folder / "pose.json", "--recording", WEIGHTS, "--frames", "3:4", *LOAD,
+                         "-o", tmp_path / "m.json")
+    assert_one_line_error(material, fragment)
+    assert not (tmp_path / "m.json").exists()
+    sense = softforce("sense", WEIGHTS, "--robot", robot, "--calibration", folder / "pose.json",
+                      "-o", tmp_path / "sense")
+    assert_one_line_error(sense, fragment)

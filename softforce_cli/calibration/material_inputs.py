@@ -6,14 +6,16 @@ from pathlib import Path
 
 import numpy as np
 
-from softforce_cli.camera.frame import RgbdFrame
+from softforce_cli.camera.frame import RgbdFrame, actuation_mismatch
 from softforce_cli.errors import CalibrationError
 from softforce_cli.estimation.session import FrameRange
 from softforce_cli.io.mcap_reader import iter_frames
+from softforce_cli.model.robot import Robot
 
 
-def static_frames(recording: Path, frames: str | None) -> list[RgbdFrame]:
-    """The frames START:STOP of a recording (all by default), checked to hold one actuation."""
+def static_frames(recording: Path, frames: str | None, robot: Robot) -> list[RgbdFrame]:
+    """The frames START:STOP of a recording (all by default), checked to hold one actuation
+    of the robot's cables (their names in the robot file's order, their control modes)."""
     try:
         selection = FrameRange.parse(frames)
     except ValueError as error:
@@ -21,6 +23,10 @@ def static_frames(recording: Path, frames: str | None) -> list[RgbdFrame]:
     chosen = [frame for _, frame, _ in selection.select(iter_frames(recording))]
     if not chosen:
         raise CalibrationError(f"{recording}: no frame in {frames or 'the recording'}")
+    why = actuation_mismatch(chosen[0].actuation, tuple(s.name for s in robot.cable_specs),
+                             {s.control for s in robot.cable_specs})
+    if why is not None:
+        raise CalibrationError(f"{recording}: {why}")
     actuations = [f.actuation.values for f in chosen if f.actuation is not None]
     if any(not np.allclose(a, actuations[0]) for a in actuations):
         raise CalibrationError(f"{recording}: the actuation changes within the selected frames "

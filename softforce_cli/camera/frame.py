@@ -23,6 +23,26 @@ class Actuation:
     values: np.ndarray
 
 
+def actuation_mismatch(actuation: Actuation | None, names: tuple[str, ...],
+                       controls: set[str]) -> str | None:
+    """Why a frame's actuation (None: the recording has none) does not drive a robot's
+    cables `names` (in the robot file's order) under the control modes `controls`, or None
+    when it does."""
+    if actuation is None:
+        if not names:
+            return None
+        return (f"no /robot/actuation message in the first frame, but the robot's cables "
+                f"({', '.join(names)}) need their inputs; record them with "
+                "`softforce record --actuation ACT.csv`")
+    if tuple(actuation.names) != tuple(names):
+        return (f"the actuation names {list(actuation.names)} are not the robot's cables "
+                f"{list(names)} (same order)")
+    if controls != {actuation.control}:
+        return (f"the actuation is {actuation.control}-controlled but the robot file's cables "
+                f"are {', '.join(sorted(controls))}-controlled")
+    return None
+
+
 @dataclass(frozen=True)
 class Markers:
     """Observed marker positions in the camera frame (topic /markers).

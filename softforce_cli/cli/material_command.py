@@ -38,9 +38,9 @@ def calibrate_material(robot_file: Path, output: Path, calibration: Path | None,
     robot = load_robot(robot_file)
     pose = read_calibration(calibration)
     with stderr.status("reading the loaded and reference frames..."):
-        loaded = static_frames(recording, frames)
+        loaded = static_frames(recording, frames, robot)
         reference = [] if reference is None and reference_frames is None else static_frames(
-            reference or recording, reference_frames)
+            reference or recording, reference_frames, robot)
     with stderr.status("fitting Young's modulus...") as status:
         fit = fit_young_modulus(
             robot, pose.robot_from_camera, loaded, reference, load, load_settings(None),

@@ -20,7 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from softforce_cli.calibration.rigid import RigidTransform
-from softforce_cli.camera.frame import RgbdFrame
+from softforce_cli.camera.frame import RgbdFrame, actuation_mismatch
 from softforce_cli.errors import SensingError, SolverError
 from softforce_cli.estimation.intensity import IntensityProblem, solve_intensities
 from softforce_cli.estimation.linear_model import LinearizedModel
@@ -627,17 +627,7 @@ def learned_robot_colour(frame: RgbdFrame, robot_from_camera: RigidTransform,
 
 def check_actuation(robot: Robot, frame: RgbdFrame, source: str) -> None:
     """SensingError unless the frame's actuation names and controls match the robot's cables."""
-    names = tuple(spec.name for spec in robot.cable_specs)
-    if frame.actuation is None:
-        if names:
-            raise SensingError(f"{source}: no /robot/actuation message in the first frame, but "
-                               f"the robot's cables ({', '.join(names)}) need their inputs; "
-                               "record them with `softforce record --actuation ACT.csv`")
-        return
-    if tuple(frame.actuation.names) != names:
-        raise SensingError(f"{source}: the actuation names {list(frame.actuation.names)} are not "
-                           f"the robot's cables {list(names)} (same order)")
-    controls = {spec.control for spec in robot.cable_specs}
-    if controls != {frame.actuation.control}:
-        raise SensingError(f"{source}: the actuation is {frame.actuation.control}-controlled but "
-                           f"the robot file's cables are {', '.join(sorted(controls))}-controlled")
+    why = actuation_mismatch(frame.actuation, tuple(spec.name for spec in robot.cable_specs),
+                             {spec.control for spec in robot.cable_specs})
+    if why is not None:
+        raise SensingError(f"{source}: {why}")
