@@ -23,8 +23,7 @@ def static_frames(recording: Path, frames: str | None, robot: Robot) -> list[Rgb
     chosen = [frame for _, frame, _ in selection.select(iter_frames(recording))]
     if not chosen:
         raise CalibrationError(f"{recording}: no frame in {frames or 'the recording'}")
-    why = actuation_mismatch(chosen[0].actuation, tuple(s.name for s in robot.cable_specs),
-                             {s.control for s in robot.cable_specs})
+    why = actuation_mismatch(chosen[0].actuation, robot.cable_specs)
     if why is not None:
         raise CalibrationError(f"{recording}: {why}")
     actuations = [f.actuation.values for f in chosen if f.actuation is not None]

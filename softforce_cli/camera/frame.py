@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from softforce_cli.camera.intrinsics import CameraIntrinsics
+
+if TYPE_CHECKING:
+    from softforce_cli.model.config import CableSpec
 
 
 @dataclass(frozen=True)
@@ -23,11 +28,13 @@ class Actuation:
     values: np.ndarray
 
 
-def actuation_mismatch(actuation: Actuation | None, names: tuple[str, ...],
-                       controls: set[str]) -> str | None:
+def actuation_mismatch(actuation: Actuation | None,
+                       cables: Sequence[CableSpec]) -> str | None:
     """Why a frame's actuation (None: the recording has none) does not drive a robot's
-    cables `names` (in the robot file's order) under the control modes `controls`, or None
-    when it does."""
+    cables (their names in the robot file's order, their control modes), or None when it
+    does."""
+    names = tuple(cable.name for cable in cables)
+    controls = {cable.control for cable in cables}
     if actuation is None:
         if not names:
             return None

@@ -234,9 +234,9 @@ class ForceSensor:
         taring = self.tare_left > 0
         detected = vision.contacts if not taring and self.known_contact is None else None
         centres = np.zeros((0, 3)) if detected is None else detected.centres_mm
+        sighted = None if detected is None else ~detected.occluded
         contact_nodes, axes, relocate = self.placement(
-            centres, self._contact_axes(centres, segmentation),
-            None if detected is None else detected.occluded)
+            centres, self._contact_axes(centres, segmentation), sighted)
         clock = _Clock(timings)
         saved = (self.state, self.tensions)
         try:
@@ -262,9 +262,8 @@ class ForceSensor:
         if taring:  # a frame whose fit diverged (lost) does not join the tare
             self.add_tare(outcome)
         status = "tare" if taring else "ok"
-        contacts = () if taring else self._contacts(
-            outcome, centres, None if detected is None else ~detected.occluded,
-            segmentation.robot_tree)
+        contacts = () if taring else self._contacts(outcome, centres, sighted,
+                                                    segmentation.robot_tree)
         clock.lap("update")
         matches = outcome.matches
         return FrameEstimate(
@@ -350,18 +349,17 @@ class ForceSensor:
         return object_axes(centres_mm, segmentation.objects.points_mm)
 
     def placement(self, centres_mm: np.ndarray, axes: np.ndarray,
-                  occluded: np.ndarray | None = None
+                  sighted: np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray, Callable[[], tuple[np.ndarray, np.ndarray]]]:
         """The distinct nodes (k,) where the contacts at centres_mm (c, 3) act at the
         current configuration, the axes (k, 3) of the contacts (axes (c, 3)) they were first
         found for, and the callable that places them again on the surface an update moved
-        (settle's relocate); the nodes are contact_nodes', occluded (c,) bool the contacts
-        that are hidden tips (vision.contacts.occluded_tips: already on the robot's surface,
-        placed by distance). A contact starts from the node of the last frame's contacts
-        nearest it, kept within the same margin, so that a held contact keeps its node from
-        frame to frame (fewer FE linearisations: 74 against 78 on the 12-location probes at
-        1280x720)."""
-        sighted = None if occluded is None else ~np.asarray(occluded, dtype=bool)
+        (settle's relocate); the nodes are contact_nodes', sighted (c,) bool (None: all)
+        the contacts that are not hidden tips (vision.contacts.occluded_tips: already on the
+        robot's surface, placed by distance). A contact starts from the node of the last
+        frame's contacts nearest it, kept within the same margin, so that a held contact
+        keeps its node from frame to frame (fewer FE linearisations: 74 against 78 on the
+        12-location probes at 1280x720)."""
         placed = self._contact_nodes(centres_mm, self._carried(centres_mm), sighted)
 
         def relocate() -> tuple[np.ndarray, np.ndarray]:
@@ -627,7 +625,6 @@ def learned_robot_colour(frame: RgbdFrame, robot_from_camera: RigidTransform,
 
 def check_actuation(robot: Robot, frame: RgbdFrame, source: str) -> None:
     """SensingError unless the frame's actuation names and controls match the robot's cables."""
-    why = actuation_mismatch(frame.actuation, tuple(spec.name for spec in robot.cable_specs),
-                             {spec.control for spec in robot.cable_specs})
+    why = actuation_mismatch(frame.actuation, robot.cable_specs)
     if why is not None:
         raise SensingError(f"{source}: {why}")
