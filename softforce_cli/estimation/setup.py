@@ -149,11 +149,12 @@ def prepare_sensing(inputs: SenseInputs, live: bool = False) -> PreparedSensing:
         0, min(count, frame_range.stop or count) - frame_range.start)
     if material is None and robot.element_name == "p1":
         # after every check, so that a bad input stays one line: a coarse P1 body is several
-        # times too stiff where it bends (docs/locking.md); tared at rest, it follows a soft
-        # body's bending with little or no force
+        # times too stiff where it bends (docs/locking.md), and which way its forces go wrong
+        # depends on the recording (docs/sensing.md)
         warnings.warn(LockingWarning(
             f"{inputs.robot} uses linear tetrahedra (element p1), which lock on a coarse mesh "
-            "and read forces low (docs/locking.md); sense with [mesh] element = \"p2\" or "
+            "and misread forces (on the Diamond: zero for the sample probes, 2-4 times too "
+            "high on make bench's; docs/locking.md); sense with [mesh] element = \"p2\" or "
             "fit E for it with `softforce calibrate --material`"), stacklevel=2)
     return PreparedSensing(sensor, itertools.chain([first], frames), header, inputs.output,
                            inputs.force, remaining, resources)
