@@ -8,7 +8,13 @@ import pytest
 
 from softforce_cli.calibration.rigid import RigidTransform
 from softforce_cli.estimation.intensity import IntensityProblem, solve_intensities
-from softforce_cli.estimation.sensing import CONTACT_REACH_MM, ForceSensor, contact_nodes
+from softforce_cli.estimation.sensing import (
+    CONTACT_REACH_MM,
+    HELD_OBJECT_MM,
+    ForceSensor,
+    contact_nodes,
+    held_contacts,
+)
 from softforce_cli.estimation.settings import EstimationSettings, SenseSettings
 from softforce_cli.fem.statics import Equilibrium, PointLoads, solve_equilibrium
 from softforce_cli.model.robot import Robot, load_robot
@@ -241,3 +247,21 @@ def test_a_held_contact_starts_a_frame_at_the_last_frames_node():
     fresh = ForceSensor(robot, CAMERA_ABOVE, ACTUATION, SenseSettings())
     assert sensor.placement(shifted, axes)[0][0] == node
     assert fresh.placement(shifted, axes)[0][0] != node
+
+
+def test_a_pushing_contact_is_held_while_its_object_stays_near():
+    """(held_contacts) A probe folding a bar hides its tip and the bar around it, and the
+    vision finds no contact: the last frame's pushing contact is held while the probe's
+    points stay within HELD_OBJECT_MM of it; not once they have gone further, nor where the
+    vision found a contact again (within the tracker's radius), nor without objects."""
+    pushing = np.array([[-35.0, 0.0, 69.0], [40.0, 0.0, 80.0]])
+    rod = pushing[0] + np.outer(np.arange(4.0, 30.0, 1.0), [-0.6, 0.0, 0.8])
+    held = held_contacts(pushing, np.zeros((0, 3)), rod, same_mm=15.0)
+    assert held.tolist() == [True, False]
+    lifted = rod + np.array([0.0, 0.0, HELD_OBJECT_MM])
+    assert not held_contacts(pushing, np.zeros((0, 3)), lifted, 15.0).any()
+    found_again = pushing[:1] + np.array([0.0, 8.0, 12.0])
+    assert not held_contacts(pushing, found_again, rod, 15.0).any()
+    assert held_contacts(pushing, pushing[1:] + 10.0, rod, 15.0).tolist() == [True, False]
+    assert held_contacts(pushing, np.zeros((0, 3)), np.zeros((0, 3)), 15.0).tolist() == [
+        False, False]

@@ -65,6 +65,14 @@ CONTACT_REACH_MM = 8.0
 # (3.8 mm median); a point further out is in other units or another frame, and its
 # attachment would extrapolate an element.
 KNOWN_CONTACT_REACH_MM = 10.0
+# A contact that pushed more than HELD_MIN_N on the last frame and that this frame's vision
+# does not find is held, at its node, while an object's points stay within HELD_OBJECT_MM of
+# that node: a probe bending a bar into a fold hides its tip and the bar around it (a 0.3 N
+# probe 30 mm deep: the probe's points 8 mm from the touch; docs/sensing_studies.md), and
+# the object that pushed is still there. The QP gives it no force once the object has let
+# go. 15 mm held a probe whose centre the vision had put 12 mm off, as a second contact.
+HELD_MIN_N = 0.02
+HELD_OBJECT_MM = 10.0
 
 
 @dataclass(frozen=True)
@@ -134,6 +142,8 @@ class ForceSensor:
         self._geometry = (np.zeros((0, 3)), np.zeros((0, 3)))
         # the nodes the last frame's contacts acted at: the next frame's contacts start there
         self.placed_nodes = np.zeros(0, dtype=np.int64)
+        # the nodes where the last frame's contacts pushed (held when not seen again)
+        self.pushing_nodes = np.zeros(0, dtype=np.int64)
         self.restart()
         self.relinearizations = 0
         # the first frame's fit: the model's own offset from the robot (P1 locks: 10 mm and
@@ -235,6 +245,9 @@ class ForceSensor:
         detected = vision.contacts if not taring and self.known_contact is None else None
         centres = np.zeros((0, 3)) if detected is None else detected.centres_mm
         sighted = None if detected is None else ~detected.occluded
+        if detected is not None:
+            centres, sighted = self._with_held(centres, sighted, segmentation)
+        self.pushing_nodes = np.zeros(0, dtype=np.int64)
         contact_nodes, axes, relocate = self.placement(
             centres, self._contact_axes(centres, segmentation), sighted)
         clock = _Clock(timings)
@@ -370,6 +383,19 @@ class ForceSensor:
 
         self.placed_nodes = placed
         return (*_acting(placed, axes), relocate)
+
+    def _with_held(self, centres_mm: np.ndarray, sighted: np.ndarray,
+                   segmentation: Segmentation) -> tuple[np.ndarray, np.ndarray]:
+        """The detected contact centres (c, 3) and their sighted flags (c,), with the last
+        frame's pushing nodes that held_contacts keeps appended, not sighted (a hidden
+        contact, placed at the node by distance)."""
+        if not len(self.pushing_nodes):
+            return centres_mm, sighted
+        pushing = self.mesh_geometry()[0][self.pushing_nodes]
+        held = held_contacts(pushing, centres_mm, segmentation.objects.points_mm,
+                             self.settings.estimation.track_radius_mm)
+        return (np.vstack([centres_mm, pushing[held]]),
+                np.concatenate([sighted, np.zeros(int(held.sum()), dtype=bool)]))
 
     def _carried(self, centres_mm: np.ndarray) -> np.ndarray | None:
         """(c,) for each contact centre (c, 3), the node of the last frame's contacts
@@ -512,9 +538,11 @@ class ForceSensor:
             positions = np.where(seen[:, None], touches, positions)
         indices = self.tracker.assign(positions)
         features = nearest_features(positions, feature_positions)
-        estimates = []
+        estimates, pushing = [], []
         for i, group in enumerate(columns.groups):
             vector = update.forces_n[group] @ columns.directions[group]
+            if len(centres_mm) and np.linalg.norm(vector) > HELD_MIN_N:
+                pushing.append(columns.points.node_indices[group[0], 0])
             near = np.linalg.norm(matched_positions - positions[i], axis=1) \
                 <= LOCAL_RESIDUAL_RADIUS_MM
             local = update.residual_mm[near] if near.any() else update.residual_mm
@@ -522,6 +550,7 @@ class ForceSensor:
                 int(indices[i]), int(features[i]), positions[i], vector,
                 float(np.sqrt(np.mean(local**2))),
             ))
+        self.pushing_nodes = np.array(pushing, dtype=np.int64)
         return tuple(estimates)
 
 
@@ -584,6 +613,23 @@ def contact_nodes(centres_mm: np.ndarray, camera_mm: np.ndarray, positions_mm: n
                 and distance_mm[nodes == placed[k]][0] <= distance_mm.min() + RELOCATE_MM):
             chosen[k] = placed[k]
     return chosen
+
+
+def held_contacts(pushing_mm: np.ndarray, centres_mm: np.ndarray, objects_mm: np.ndarray,
+                  same_mm: float) -> np.ndarray:
+    """(k,) bool: which of the last frame's pushing contacts at pushing_mm (k, 3) hold on
+    this frame, unseen: no contact centre (c, 3) within same_mm of it (the vision found it
+    again: the tracker's radius, within which a contact is the same one), and an object
+    point (n, 3) within HELD_OBJECT_MM (the object that pushed is still there)."""
+    pushing = np.asarray(pushing_mm, dtype=float).reshape(-1, 3)
+    objects = np.asarray(objects_mm, dtype=float).reshape(-1, 3)
+    if not len(pushing) or not len(objects):
+        return np.zeros(len(pushing), dtype=bool)
+    held = np.isfinite(cKDTree(objects).query(pushing, distance_upper_bound=HELD_OBJECT_MM)[0])
+    centres = np.asarray(centres_mm, dtype=float).reshape(-1, 3)
+    if len(centres):
+        held &= np.linalg.norm(pushing[:, None] - centres[None], axis=2).min(axis=1) > same_mm
+    return held
 
 
 def _acting(placed: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
