@@ -24,9 +24,14 @@ class VisionSettings:
                              radius are removed: a surface patch of radius 5 mm holds about 60
                              points at 1.1 mm spacing, an isolated speckle a handful. 0 turns
                              the filter off (region growing still drops isolated specks).
-    crop_margin_mm         : 20.0, the PassThrough box is the model's current bounds grown by
+    crop_margin_mm         : 40.0, the PassThrough box is the model's current bounds grown by
                              this on every side: room for deformation the model has not yet
-                             followed and for the objects touching the robot.
+                             followed and for the objects touching the robot, long enough of
+                             them to show an axis (occluded_tip_mm): with 20 mm a probe
+                             pressing the apex 25 degrees from the vertical left 26 points
+                             in the box, no axis, and was missed (docs/sensing_studies.md,
+                             "Large deformations"). The box's object points grow by a fifth,
+                             its time by 0.3 ms a frame.
 
     Table removal (not in the paper; its figures show the robot on a table that would
     otherwise become one large "object" touching the robot's base):
@@ -81,12 +86,16 @@ class VisionSettings:
     contact_exclusion_mm   : 5.0, contact points within this of the clamped region's box
                              (given by the caller) are ignored: a clamp or fixture touching
                              the base exerts no force the model can explain.
-    occluded_tip_mm        : 8.0, an elongated object (a rod, a finger) none of whose points
+    occluded_tip_mm        : 10.0, an elongated object (a rod, a finger) none of whose points
                              is a contact point touches the robot where its axis, extended
                              by at most this beyond its end nearer the robot, passes within
                              contact_radius_mm of MORE than contact_min_neighbours robot
                              points (contacts.occluded_tips): a rod tilted from the view
-                             hides its own tip. 0 turns this off (Algorithm 2 alone).
+                             hides its own tip, and its line meets a face it presses
+                             obliquely 8-10 mm beyond its last seen point (8 until
+                             2026-12-01: the apex probe above met the robot 7.6-8.5 mm
+                             beyond, a 424x240 elbow probe was missed on one frame). 0 turns
+                             this off (Algorithm 2 alone).
 
     Feature matching (Algorithm 3):
     match_line_mm          : 4.0, d_m: a feature is hidden when no robot point lies within
@@ -133,7 +142,7 @@ class VisionSettings:
     voxel_mm: float = 1.1
     outlier_radius_mm: float = 5.0
     outlier_min_neighbours: int = 20
-    crop_margin_mm: float = 20.0
+    crop_margin_mm: float = 40.0
     table_slab_mm: float = 30.0
     table_fit_mm: float = 4.0
     table_clearance_mm: float = 8.0
@@ -149,7 +158,7 @@ class VisionSettings:
     cluster_min_points: int = 1
     contact_merge_mm: float = 10.0
     contact_exclusion_mm: float = 5.0
-    occluded_tip_mm: float = 8.0
+    occluded_tip_mm: float = 10.0
     match_line_mm: float = 4.0
     match_limit_mm: float = 20.0
     match_search_mm: float = 30.0
