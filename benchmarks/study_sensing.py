@@ -16,7 +16,8 @@ the figures in docs/figures/, which docs/sensing_studies.md quotes.
   follows), and frames without contact (phantoms).
 - A sweep of feature count (25, 51, 101) on the probes: error and frame rate.
 - `--scenario FILE`: any scenario (benchmarks/scenarios/: another actuation, an oblique
-  camera), sensed with the truth's camera pose and tared on its first 3 frames.
+  camera, large deformations, many contacts, contacts a camera above hides), sensed with
+  the truth's camera pose and tared on its first 3 frames.
 - `--converged`: the truth closer to the mesh-converged body (P2-P0 on the 4.8 mm mesh of
   sample_data/diamond_fine, docs/locking.md's reference) instead of P2 on the 6.5 mm one;
   written to out/study_sensing_converged/.
