@@ -12,8 +12,10 @@ import pytest
 
 from softforce_cli.calibration.result import read_calibration
 from softforce_cli.errors import SensingError
+from softforce_cli.estimation.results import FrameEstimate
 from softforce_cli.estimation.sensing import ForceSensor
 from softforce_cli.estimation.settings import EstimationSettings, SenseSettings
+from softforce_cli.estimation.summary import POOR_FIT_MM, SenseSummary
 from softforce_cli.estimation.truth_errors import compare_with_truth, pose_from_truth, read_truth
 from softforce_cli.io.mcap_reader import iter_frames
 from softforce_cli.model.robot import load_robot
@@ -58,6 +60,7 @@ def test_sense_writes_the_three_files_of_the_contract(probes_run):
     assert {"recording", "robot", "calibration", "settings", "frames", "summary"} <= set(document)
     assert [f["frame"] for f in document["frames"]] == [0, 1, 2, 3]
     assert document["summary"]["frames"] == 4
+    assert document["summary"]["poor_fit_frames"] == []
     # the 424x240 sample: every pixel, the paper's counts scaled to its coarser image (as
     # test_default_settings_are_scaled_to_the_recording_camera finds them in the pipeline)
     camera = document["camera"]
@@ -210,6 +213,20 @@ def test_a_frame_whose_fit_diverged_is_skipped_as_lost(probes_run, tmp_path):
     refused = softforce("sense", PROBES, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
                         "-o", tmp_path / "out2", "--settings", settings)
     assert_one_line_error(refused, "lost_fit_mm")
+
+
+def test_frames_that_fit_far_worse_than_the_first_are_listed():
+    """(SenseSummary.poor_fit_frames) An ok frame fitting more than POOR_FIT_MM worse than
+    the run's first fit (a tare frame's here) is listed, and sense warns about it; a frame
+    within it, a skipped frame (lost: the sensor's own test) and a frame with no fit are
+    not."""
+    summary = SenseSummary()
+    for frame, status, fit in [(0, "tare", 1.2), (1, "ok", 1.2 + POOR_FIT_MM - 0.01),
+                               (2, "ok", 1.2 + POOR_FIT_MM + 0.01), (3, "lost", 12.0),
+                               (4, "nodepth", float("nan")), (5, "ok", 9.0)]:
+        summary.add(FrameEstimate(frame, 0.1 * frame, status, fit_rms_mm=fit))
+    assert summary.poor_fit_frames == [2, 5]
+    assert summary.to_dict()["poor_fit_frames"] == [2, 5]
 
 
 def test_a_lost_frame_does_not_join_the_tare(probes_run):

@@ -9,6 +9,14 @@ import numpy as np
 
 from softforce_cli.estimation.results import STAGES, FrameEstimate
 
+# An ok frame whose fit (RMS normal residual of the matched features) is more than this above
+# the run's first fit is one where the model did not follow the robot: a deformation beyond
+# what it could reach from the frame before, a contact it was not given. The studies' frames
+# fit within 2 mm of the first (4 mm with an oblique camera and a probe it cannot see); a bar
+# snapped 47 mm down, out of sight, 8-10 mm (docs/sensing_studies.md, "Large deformations").
+# Beyond lost_fit_mm (estimation settings) a frame is skipped as lost instead.
+POOR_FIT_MM = 5.0
+
 
 @dataclass
 class ContactRange:
@@ -37,6 +45,9 @@ class SenseSummary:
     # wall time between one frame's results and the next's (ms): the rate frames come out at,
     # which with the look-ahead (estimation.lookahead) is less than a frame's stage times
     interval_ms: list[float] = field(default_factory=list)
+    # ok frames that fit more than POOR_FIT_MM worse than the run's first frame
+    poor_fit_frames: list[int] = field(default_factory=list)
+    _first_fit_mm: float | None = None
     _last_done_s: float | None = None
 
     def add(self, estimate: FrameEstimate) -> None:
@@ -44,8 +55,13 @@ class SenseSummary:
         if self.first_time_s is None:
             self.first_time_s = estimate.time_s
         self.last_time_s = estimate.time_s
+        fitted = estimate.fit_rms_mm == estimate.fit_rms_mm  # not NaN
+        if self._first_fit_mm is None and fitted:
+            self._first_fit_mm = estimate.fit_rms_mm
         if estimate.status == "ok":
             self.ok += 1
+            if fitted and estimate.fit_rms_mm > self._first_fit_mm + POOR_FIT_MM:
+                self.poor_fit_frames.append(estimate.frame)
         else:
             self.skipped[estimate.status] = self.skipped.get(estimate.status, 0) + 1
         for contact in estimate.contacts:
@@ -93,4 +109,5 @@ class SenseSummary:
             "median_interval_ms": (round(float(np.median(self.interval_ms)), 3)
                                    if self.interval_ms else None),
             "median_stage_ms": {k: round(v, 3) for k, v in self.stage_medians_ms().items()},
+            "poor_fit_frames": list(self.poor_fit_frames),
         }
