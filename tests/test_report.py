@@ -188,6 +188,28 @@ def test_a_run_that_ended_early_says_so(sense_out, tmp_path, ending, note):
     assert not load_run(sense_out).sense.notes  # a whole run has none
 
 
+def test_frames_that_fit_poorly_are_named(sense_out, tmp_path):
+    """sense.json's summary names frames the model did not follow (poor_fit_frames): the
+    report names them, in the terminal and on the page; a run without the entry (before
+    2026-12-01) or with a malformed one names none."""
+    poor = tmp_path / "poor"
+    shutil.copytree(sense_out, poor, ignore=shutil.ignore_patterns("report"))
+    document = json.loads((poor / "sense.json").read_text())
+    document["summary"]["poor_fit_frames"] = [2, 3]
+    (poor / "sense.json").write_text(json.dumps(document))
+    assert sense_overview(load_run(poor).sense).poor_fit_frames == (2, 3)
+    result = softforce("report", poor)
+    assert result.returncode == 0, result.stderr
+    assert "2 frame(s) fit the robot more than 5 mm worse than the first (2, 3)" in " ".join(
+        result.stdout.split())
+    assert "frames fitting poorly" in (poor / "report" / "report.html").read_text()
+    for entry in (None, "2, 3"):
+        document["summary"]["poor_fit_frames"] = entry
+        (poor / "sense.json").write_text(json.dumps(document))
+        assert sense_overview(load_run(poor).sense).poor_fit_frames == ()
+    assert sense_overview(load_run(sense_out).sense).poor_fit_frames == ()
+
+
 def test_an_interrupted_run_is_reported_as_far_as_it_went(sense_out, tmp_path):
     """frames.csv cut mid-row, contacts.csv ahead of it, sense.json cut: the whole rows are
     reported and each problem is noted."""

@@ -6,6 +6,7 @@ from rich.console import Group, RenderableType
 from rich.table import Table as RichTable
 from rich.text import Text
 
+from softforce_cli.estimation.summary import poor_fit_text
 from softforce_cli.report.diagnosis_file import Diagnosis
 from softforce_cli.report.overview import STATUS_MEANINGS, Overview
 from softforce_cli.report.truth import TruthReport
@@ -19,6 +20,8 @@ def sense_summary(overview: Overview, truth: TruthReport | None) -> RenderableTy
                       f"{overview.ok} ok, {len(overview.contacts)} contacts; {rate}"))
     if overview.camera is not None:
         parts.append(Text(f"camera {overview.camera}"))
+    if overview.poor_fit_frames:
+        parts.append(Text(poor_fit_text(overview.poor_fit_frames), style="yellow"))
     if overview.skipped:
         skipped = RichTable(title="frames skipped", title_justify="left")
         for name in ("status", "frames", "why"):

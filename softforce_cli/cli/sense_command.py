@@ -15,8 +15,6 @@ from softforce_cli.errors import SensingError
 FORCE_MODELS = ("axis", "normal", "cone", "3d")
 # Below this rate with a full quadratic model, the end of a run points to its reduced model.
 SLOW_FPS = 15.0
-# The end of a run names at most this many of the frames that fit poorly.
-POOR_FIT_LISTED = 8
 
 
 def sense(
@@ -86,15 +84,10 @@ def sense(
         summary = _run(prepared, lambda: stop.requested)
     _print_summary(summary)
     if summary.poor_fit_frames:
-        from softforce_cli.estimation.summary import POOR_FIT_MM
+        from softforce_cli.estimation.summary import poor_fit_text
 
-        frames = summary.poor_fit_frames
-        listed = ", ".join(map(str, frames[:POOR_FIT_LISTED])) + (
-            ", ..." if len(frames) > POOR_FIT_LISTED else "")
-        stderr.print(f"[yellow]warning:[/] {len(frames)} frame(s) fit the robot more than "
-                     f"{POOR_FIT_MM:g} mm worse than the first ({listed}): the model did not "
-                     "follow the body there (a deformation beyond it, a contact out of sight), "
-                     "so their forces are unreliable (docs/sensing.md)", soft_wrap=True)
+        stderr.print(f"[yellow]warning:[/] {poor_fit_text(summary.poor_fit_frames)} "
+                     "(docs/sensing.md)", soft_wrap=True)
     robot_config = prepared.sensor.robot.config
     if (robot_config.mesh.element != "p1" and robot_config.mesh.reduced is None
             and summary.frames_per_s < SLOW_FPS):

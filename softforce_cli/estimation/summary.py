@@ -16,6 +16,18 @@ from softforce_cli.estimation.results import STAGES, FrameEstimate
 # snapped 47 mm down, out of sight, 8-10 mm (docs/sensing_studies.md, "Large deformations").
 # Beyond lost_fit_mm (estimation settings) a frame is skipped as lost instead.
 POOR_FIT_MM = 5.0
+# poor_fit_text names at most this many frames.
+POOR_FIT_LISTED = 8
+
+
+def poor_fit_text(frames: list[int] | tuple[int, ...]) -> str:
+    """The frames that fit poorly as "3 frames fit ... (16, 17, 18): ..." for the end of a
+    run and its report."""
+    listed = ", ".join(map(str, frames[:POOR_FIT_LISTED])) + (
+        ", ..." if len(frames) > POOR_FIT_LISTED else "")
+    return (f"{len(frames)} frame(s) fit the robot more than {POOR_FIT_MM:g} mm worse than "
+            f"the first ({listed}): the model did not follow the body there (a deformation "
+            "beyond it, a contact out of sight), so their forces are unreliable")
 
 
 @dataclass

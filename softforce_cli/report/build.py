@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from softforce_cli.errors import ModelError, SolverError
+from softforce_cli.estimation.summary import poor_fit_text
 from softforce_cli.io.atomic import atomic_write_text, check_writable
 from softforce_cli.model.robot import Robot, load_robot
 from softforce_cli.report import page
@@ -127,6 +128,8 @@ def _sense_sections(run: SenseRun, overview: Overview, truth: TruthReport | None
                 ("duration", f"{overview.duration_s:.2f} s"), ("speed", rate)]
     if overview.camera is not None:
         run_rows.append(("camera", overview.camera))
+    if overview.poor_fit_frames:
+        run_rows.append(("frames fitting poorly", poor_fit_text(overview.poor_fit_frames)))
     body = page.table_html(None, run_rows)
     if overview.skipped:
         body += page.table_html(("status", "frames", "meaning"), [

@@ -33,7 +33,9 @@ class Overview:
     frames_per_s: the run's own rate (sense.json), else 1000 / mean total_ms;
     stage_median_ms: stage -> median milliseconds over the frames;
     camera: what the vision stage made of the camera, one line (None when sense.json has no
-    readable "camera" entry, as before 2026-11-30)."""
+    readable "camera" entry, as before 2026-11-30);
+    poor_fit_frames: the ok frames sense found fitting the robot far worse than the first
+    (sense.json's summary; none where it has no such entry, as before 2026-12-01)."""
 
     frames: int
     ok: int
@@ -44,6 +46,7 @@ class Overview:
     stage_median_ms: dict[str, float]
     duration_s: float
     camera: str | None = None
+    poor_fit_frames: tuple[int, ...] = ()
 
 
 def camera_line(entry: object) -> str | None:
@@ -78,9 +81,12 @@ def sense_overview(run: SenseRun) -> Overview:
     stages = {s: float(np.nanmedian(frames[f"{s}_ms"])) for s in STAGES
               if f"{s}_ms" in frames.names and len(frames)}
     times = frames["time_s"]
+    poor = run.summary.get("poor_fit_frames")
     return Overview(
         frames=len(frames), ok=int(run.ok.sum()), skipped=skipped, contacts=tuple(spans),
         frames_per_s=float(rate), rate_measured=measured, stage_median_ms=stages,
         duration_s=float(times.max() - times.min()) if len(times) else 0.0,
         camera=camera_line(run.header.get("camera")),
+        poor_fit_frames=tuple(int(f) for f in poor if isinstance(f, int))
+        if isinstance(poor, list) else (),
     )
