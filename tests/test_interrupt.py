@@ -19,6 +19,8 @@ from pathlib import Path
 
 import pytest
 
+from softforce_cli.cli.interrupt import install_signal_handlers
+from softforce_cli.io import mcap_writer
 from softforce_cli.io.mcap_reader import iter_frames, read_summary
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -155,6 +157,28 @@ def test_signal_before_any_frame_writes_nothing(tmp_path, long_scenario):
     assert process.returncode == 143, stderr
     assert "Traceback" not in stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["long.toml"]
+
+
+def test_a_signal_as_the_temporary_file_is_made_leaves_nothing(tmp_path, monkeypatch):
+    """SIGTERM right after the recording's temporary file appeared (the moment the test
+    above signals at; once in many runs it landed before the writer held the file, and the
+    file stayed): the writer still deletes it, and the signal stops the run."""
+    previous = signal.getsignal(signal.SIGTERM)
+    install_signal_handlers()  # as the command does: SIGTERM raises Terminated
+    opened = mcap_writer.os.fdopen
+
+    def fdopen_then_signal(fd, *args, **kwargs):
+        handle = opened(fd, *args, **kwargs)
+        signal.raise_signal(signal.SIGTERM)
+        return handle
+
+    monkeypatch.setattr(mcap_writer.os, "fdopen", fdopen_then_signal)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            mcap_writer.RecordingWriter(tmp_path / "rec.mcap")
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_signal_while_finishing_waits_for_the_finished_file(tmp_path):

@@ -21,6 +21,7 @@ from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
+from typing import IO
 
 import mcap.writer
 import numpy as np
@@ -122,9 +123,14 @@ class RecordingWriter:
         self._last_time_ns: int | None = None
         self._closed = False
         self._metadata = {"softforce_version": __version__, **_checked_metadata(metadata)}
-        fd, self._tmp = temporary_beside(self.path, f".{self.path.name}.", ".tmp")
-        self._stream = os.fdopen(fd, "wb")
+        self._tmp: Path | None = None
+        self._stream: IO[bytes] | None = None
         try:
+            # a Ctrl-C or SIGTERM arriving as the temporary file is made is raised once it is
+            # ours to delete (a signal right after the file appeared had left it behind)
+            with _signals_held():
+                fd, self._tmp = temporary_beside(self.path, f".{self.path.name}.", ".tmp")
+                self._stream = os.fdopen(fd, "wb")
             self._writer = McapWriter(self._stream, compression=CompressionType.ZSTD)
             _pack_chunk_indexes(self._writer)
             self._writer.start(library=f"softforce/{__version__}")
@@ -210,9 +216,10 @@ class RecordingWriter:
             self.abort()
 
     def _discard(self) -> None:
-        if not self._stream.closed:
+        if self._stream is not None and not self._stream.closed:
             self._stream.close()
-        self._tmp.unlink(missing_ok=True)
+        if self._tmp is not None:
+            self._tmp.unlink(missing_ok=True)
 
 
 @contextlib.contextmanager
