@@ -246,3 +246,37 @@ def test_neighbour_counts_scale_with_the_measured_point_density(probes, sample_r
     assert (default.settings.outlier_min_neighbours,
             every_pixel.settings.outlier_min_neighbours) == (20, 42)
     assert 0.3 < len(default.cloud) / len(every_pixel.cloud) < 0.7
+
+
+def test_neighbour_counts_scale_with_the_cameras_distance(probes, sample_robot, tmp_path):
+    """A camera further away sees the robot's surface more sparsely, and settings_for_camera
+    scales the counts for it. Reference: the density measured on the sample's first frame
+    (424x240 at 536 mm) and on the same scene at 640x480 seen from 760 mm, against the
+    density the rule predicts for each (the 640x480 D415 at REFERENCE_DISTANCE_MM is the
+    rule's reference). The rule before took the reference at the camera's own distance and
+    predicted the focal length squared, 2.3 times, where the far camera is about as dense as
+    the near one: it filtered that camera's robot away (35 neighbours asked, 0 of 12 probe
+    contacts found at 753 mm)."""
+    _, pose, _, _, _ = probes
+    scenario = sample_probes_scenario(640, 480, frames=1).replace(
+        "height = 480", "height = 480\nposition_mm = [0.0, 0.0, 800.0]")
+    (tmp_path / "far.toml").write_text(scenario)
+    simulated = simulate(tmp_path / "far.toml", tmp_path / "far.mcap")
+    far = next(iter_frames(simulated.recording))
+    camera = json.loads(simulated.truth.read_text())["camera"]
+    far_pose = RigidTransform(np.array(camera["rotation"]), np.array(camera["translation_mm"]))
+    low = next(iter_frames(RECORDING))
+    bounds = sample_robot.mesh.bounds_mm
+    near_mm, far_mm = robot_distance_mm(bounds, pose), robot_distance_mm(bounds, far_pose)
+    assert 740.0 < far_mm < 780.0
+
+    def scale(focal_px: float, distance_mm: float) -> float:
+        many = VisionSettings(outlier_min_neighbours=10_000)
+        return settings_for_camera(many, focal_px, distance_mm).outlier_min_neighbours / 10_000
+
+    measured = _robot_density(far, far_pose, bounds) / _robot_density(low, pose, bounds)
+    predicted = scale(far.intrinsics.fx, far_mm) / scale(low.intrinsics.fx, near_mm)
+    assert predicted == pytest.approx(measured, rel=0.15)
+    assert (far.intrinsics.fx / low.intrinsics.fx) ** 2 > 1.5 * measured
+    far_counts = settings_for_camera(VisionSettings(), far.intrinsics.fx, far_mm)
+    assert (far_counts.outlier_min_neighbours, far_counts.contact_min_neighbours) == (10, 2)

@@ -192,6 +192,10 @@ class VisionSettings:
 # fx of the 640x480 D415 colour stream (69 degrees horizontal field of view), the resolution
 # of the paper's camera code for which outlier_min_neighbours = 20 was chosen.
 REFERENCE_FOCAL_PX = 465.6
+# The camera's distance to the robot (to the centre of its bounds) at which the counts were
+# chosen and measured (docs/vision.md, "Other resolutions": the sample recordings, 536 mm;
+# the studies' recordings are 536-548 mm away).
+REFERENCE_DISTANCE_MM = 536.0
 
 
 def settings_for_frame(settings: VisionSettings, focal_px: float, distance_mm: float
@@ -216,8 +220,11 @@ def settings_for_camera(settings: VisionSettings, focal_px: float, distance_mm: 
     counts scaled to the decimated image.
 
     outlier_min_neighbours and contact_min_neighbours are multiplied by the ratio of the
-    robot's point density to that of the 640x480 D415 (REFERENCE_FOCAL_PX) at the same
-    distance, and rounded (at least 1 and 0). After the VoxelGrid a surface holds about one
+    robot's point density to that of the 640x480 D415 (REFERENCE_FOCAL_PX) at
+    REFERENCE_DISTANCE_MM, where the counts were chosen, and rounded (at least 1 and 0): a
+    camera further away sees fewer points (until 2026-12-01 the reference was the 640x480
+    D415 at the same distance, and a 848x480 D415 at 753 mm filtered with 35 and 5 found
+    none of 12 probe contacts; with 18 and 3, all). After the VoxelGrid a surface holds about one
     point per p max(p, v) of area, with p = distance_mm / f a pixel's footprint (f the focal
     length after decimation) and v the grid's leaf: p^2 while pixels are coarser than the
     leaf; finer ones are merged across the surface, but the depth noise spreads a leaf's
@@ -231,12 +238,13 @@ def settings_for_camera(settings: VisionSettings, focal_px: float, distance_mm: 
     """
     factor = _decimation(settings, focal_px, distance_mm)
 
-    def density(focal: float) -> float:
-        # a camera placed at the robot (a bad pose) still gets finite counts: the focal ratio
-        footprint = max(distance_mm, 1e-9) / focal
+    def density(focal: float, distance: float) -> float:
+        # a camera placed at the robot (a bad pose) still gets finite counts
+        footprint = max(distance, 1e-9) / focal
         return 1.0 / (footprint * max(footprint, settings.voxel_mm))
 
-    scale = density(focal_px / factor) / density(REFERENCE_FOCAL_PX)
+    scale = (density(focal_px / factor, distance_mm)
+             / density(REFERENCE_FOCAL_PX, REFERENCE_DISTANCE_MM))
     return replace(
         settings,
         decimation=factor,
