@@ -13,6 +13,7 @@ import json
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -20,7 +21,7 @@ from pathlib import Path
 import pytest
 
 from softforce_cli.cli.interrupt import install_signal_handlers
-from softforce_cli.io import mcap_writer
+from softforce_cli.io import atomic, mcap_writer
 from softforce_cli.io.mcap_reader import iter_frames, read_summary
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -159,23 +160,34 @@ def test_signal_before_any_frame_writes_nothing(tmp_path, long_scenario):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["long.toml"]
 
 
-def test_a_signal_as_the_temporary_file_is_made_leaves_nothing(tmp_path, monkeypatch):
-    """SIGTERM right after the recording's temporary file appeared (the moment the test
-    above signals at; once in many runs it landed before the writer held the file, and the
-    file stayed): the writer still deletes it, and the signal stops the run."""
+def _recording(folder: Path) -> None:
+    mcap_writer.RecordingWriter(folder / "rec.mcap")
+
+
+def _atomic_text(folder: Path) -> None:
+    with atomic.atomic_open(folder / "out.json") as handle:
+        handle.write("{}")
+
+
+@pytest.mark.parametrize("write", [_recording, _atomic_text])
+def test_a_signal_as_the_temporary_file_is_made_leaves_nothing(tmp_path, monkeypatch, write):
+    """SIGTERM right after an output's temporary file appeared (the moment the test above
+    signals at; once in many runs it landed before the writer held the file, and the file
+    stayed): the writer still deletes it, and the signal stops the run. For a recording and
+    for any atomically written file."""
     previous = signal.getsignal(signal.SIGTERM)
     install_signal_handlers()  # as the command does: SIGTERM raises Terminated
-    opened = mcap_writer.os.fdopen
+    made = tempfile.mkstemp
 
-    def fdopen_then_signal(fd, *args, **kwargs):
-        handle = opened(fd, *args, **kwargs)
+    def make_then_signal(*args, **kwargs):
+        made_file = made(*args, **kwargs)
         signal.raise_signal(signal.SIGTERM)
-        return handle
+        return made_file
 
-    monkeypatch.setattr(mcap_writer.os, "fdopen", fdopen_then_signal)
+    monkeypatch.setattr(tempfile, "mkstemp", make_then_signal)
     try:
         with pytest.raises(KeyboardInterrupt):
-            mcap_writer.RecordingWriter(tmp_path / "rec.mcap")
+            write(tmp_path)
     finally:
         signal.signal(signal.SIGTERM, previous)
     assert list(tmp_path.iterdir()) == []

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import tempfile
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
@@ -36,6 +38,31 @@ def writable_folder(folder: Path) -> Path:
     return folder
 
 
+@contextlib.contextmanager
+def signals_held() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM back within the block, and raise them at its end: a Ctrl-C then
+    arrives once a file is complete (or once it is ours to delete) instead of leaving it
+    half-finished (or behind).
+
+    Python runs signal handlers in the main thread whichever thread the signal reached, so
+    the handlers are swapped for ones that only note the signal, and the noted signals are
+    raised again, to the original handlers, at the end.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    noted: list[int] = []
+    kinds = (signal.SIGINT, signal.SIGTERM)
+    previous = {kind: signal.signal(kind, lambda signum, _: noted.append(signum)) for kind in kinds}
+    try:
+        yield
+    finally:
+        for kind, handler in previous.items():
+            signal.signal(kind, handler)
+        for signum in dict.fromkeys(noted):
+            signal.raise_signal(signum)
+
+
 def temporary_beside(path: Path, prefix: str, suffix: str) -> tuple[int, Path]:
     """(descriptor, path) of a new temporary file in `path`'s folder (made when missing), or
     OutputError naming `path` when no file can be made there."""
@@ -54,9 +81,10 @@ def check_can_write(path: Path) -> None:
     input found mid-way) leaves no empty output folder behind."""
     path = Path(path)
     missing = [folder for folder in path.parents if not folder.exists()]
-    fd, tmp = temporary_beside(path, f".{path.name}.", ".probe")
-    os.close(fd)
-    tmp.unlink()
+    with signals_held():  # a Ctrl-C between making the probe and removing it leaves none
+        fd, tmp = temporary_beside(path, f".{path.name}.", ".probe")
+        os.close(fd)
+        tmp.unlink()
     for folder in missing:  # deepest first
         with contextlib.suppress(OSError):
             folder.rmdir()
@@ -70,16 +98,20 @@ def atomic_open(path: Path, mode: str = "w", force: bool = False) -> Iterator[IO
     """
     path = Path(path)
     check_writable(path, force)
-    fd, tmp = temporary_beside(path, f".{path.name}.", ".tmp")
+    tmp: Path | None = None
     try:
-        with os.fdopen(fd, mode) as handle:
+        with signals_held():  # a Ctrl-C as the file is made arrives once it is ours to delete
+            fd, tmp = temporary_beside(path, f".{path.name}.", ".tmp")
+            handle = os.fdopen(fd, mode)
+        with handle:
             yield handle
             handle.flush()
             os.fsync(handle.fileno())
         os.chmod(tmp, new_file_mode())
         os.replace(tmp, path)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
         raise
 
 
@@ -89,14 +121,17 @@ def atomic_path(path: Path, force: bool = False) -> Iterator[Path]:
     renamed over `path` on success, deleted on failure. Keeps the suffix for format sniffing."""
     path = Path(path)
     check_writable(path, force)
-    fd, tmp = temporary_beside(path, f".{path.stem}.", f".tmp{path.suffix}")
-    os.close(fd)
+    tmp: Path | None = None
     try:
+        with signals_held():  # a Ctrl-C as the file is made arrives once it is ours to delete
+            fd, tmp = temporary_beside(path, f".{path.stem}.", f".tmp{path.suffix}")
+            os.close(fd)
         yield tmp
         os.chmod(tmp, new_file_mode())
         os.replace(tmp, path)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
         raise
 
 
