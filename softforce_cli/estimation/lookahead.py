@@ -7,7 +7,7 @@ numpy, scipy's KD-trees and open3d spend most of that time in compiled loops tha
 the GIL (the two measured 1.8 times faster together than in turn, docs/sensing_studies.md).
 
 A worker thread reads the frames, observes each one in the crop box of the configuration
-the sensor last left (one frame old: the box's 20 mm margin is far more than a frame's
+the sensor last left (one frame old: the box's 40 mm margin is far more than a frame's
 motion) and hands them over in order through a short queue; the caller settles the model on
 each. The first frame is the caller's to observe, as the sensor learns the robot's colour
 on it. Stopping early (Ctrl-C, a closed generator) stops the worker after the frame it is
