@@ -180,7 +180,7 @@ def test_recording_without_actuation_is_refused_when_the_cables_need_it(tmp_path
 
 
 def test_a_recording_that_starts_touched_is_not_zeroed(probes_run, tmp_path):
-    """Automatic taring stops at the first frame that shows a contact: from frame 1 on, the
+    """Automatic taring waits for a frame that shows no contact: from frame 1 on, the
     probes recording is touched in every frame, so nothing is tared."""
     _, _, calibration = probes_run
     result = softforce("sense", PROBES, "--robot", SAMPLE_ROBOT, "--calibration", calibration,
@@ -189,6 +189,26 @@ def test_a_recording_that_starts_touched_is_not_zeroed(probes_run, tmp_path):
     document = json.loads((tmp_path / "out" / "sense.json").read_text())
     assert [f["status"] for f in document["frames"]] == ["ok", "ok", "ok"]
     assert [len(f["contacts"]) for f in document["frames"]] == [1, 1, 2]
+    assert "starts touched: it never shows the robot free" in " ".join(result.stderr.split())
+
+
+def test_a_recording_that_starts_touched_is_zeroed_when_first_seen_free(probes_run):
+    """Automatic taring on a recording that starts touched: the sensor tares on the first
+    frames that show the robot free, though contacts come between them (here the probes'
+    free frame 0 shown after the touched frame 1, twice, between touched ones), up to
+    AUTO_TARE_FRAMES; one that starts free stops taring at its first contact as before."""
+    _, _, calibration = probes_run
+    robot = load_robot(SAMPLE_ROBOT)
+    frames = list(iter_frames(PROBES))[:3]
+
+    def statuses(order: list[int]) -> tuple[list[str], int]:
+        sensor = ForceSensor(robot, read_calibration(calibration).robot_from_camera,
+                             frames[0].actuation.values, SenseSettings(), tare_frames=None)
+        found = [sensor.process(i, frames[i]).status for i in order]
+        return found, sensor.tare_left
+
+    assert statuses([1, 0, 2, 0, 1]) == (["ok", "tare", "ok", "tare", "ok"], 1)
+    assert statuses([0, 1, 0]) == (["tare", "ok", "ok"], 0)
 
 
 def test_a_frame_whose_fit_diverged_is_skipped_as_lost(probes_run, tmp_path):

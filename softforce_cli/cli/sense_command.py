@@ -53,7 +53,8 @@ def sense(
         "--tare", help="Take the first N frames as free of external force and zero the "
         "observations on them (the cables' inputs should not change much after); 0: no "
         "zeroing. Default: the first 3 frames in which no contact is seen, none once one "
-        "is (and none with --contact-point).")] = None,
+        "is; a recording that starts touched, on the first 3 frames it shows free (none "
+        "with --contact-point).")] = None,
     robot_rgb: Annotated[str | None, typer.Option(
         "--robot-rgb", help="R,G,B of the robot (0-255); default: learned on the first frame.")
     ] = None,
@@ -88,6 +89,14 @@ def sense(
 
         stderr.print(f"[yellow]warning:[/] {poor_fit_text(summary.poor_fit_frames)} "
                      "(docs/sensing.md)", soft_wrap=True)
+    if prepared.sensor.started_touched:
+        tared = summary.skipped.get("tare", 0)
+        zeroed = (f"the sensor zeroed itself on the first {tared} frame(s) it showed free, "
+                  "and the frames before the first of them" if tared else
+                  "it never shows the robot free, so nothing was zeroed, and its frames")
+        stderr.print(f"note: the recording starts touched: {zeroed} read the model's rest "
+                     "offset as force (--tare N zeroes on the first N frames; docs/sensing.md, "
+                     "Zeroing)", soft_wrap=True)
     robot_config = prepared.sensor.robot.config
     if (robot_config.mesh.element != "p1" and robot_config.mesh.reduced is None
             and summary.frames_per_s < SLOW_FPS):

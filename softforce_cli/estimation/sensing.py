@@ -153,10 +153,12 @@ class ForceSensor:
         # taring: the first tare_frames processed frames are taken as free of external force,
         # and each feature's mean normal offset there (observed - model) is subtracted from
         # its later observations, as a force sensor is zeroed before use; None tares on the
-        # first AUTO_TARE_FRAMES frames that show no contact, and stops at one that does
-        # (never with a known contact: a weight may hang from the first frame)
+        # first AUTO_TARE_FRAMES frames that show no contact, and stops at one that does;
+        # a recording that starts touched is tared on the first frames it shows free (never
+        # with a known contact: a weight may hang from the first frame)
         self.auto_tare = tare_frames is None and known_contact is None
         self.tare_left = AUTO_TARE_FRAMES if self.auto_tare else tare_frames or 0
+        self.started_touched: bool | None = None  # with auto taring, once a frame is seen
         self._tare_sum = np.zeros(len(robot.feature_nodes))
         self._tare_count = np.zeros(len(robot.feature_nodes))
         clamped = robot.mesh.nodes_mm[robot.fixed_nodes]
@@ -239,9 +241,13 @@ class ForceSensor:
             return FrameEstimate(index, time_s, "nodepth", timings_ms=timings, **counts)
         if len(segmentation.robot) < self.settings.estimation.min_robot_points:
             return FrameEstimate(index, time_s, "norobot", timings_ms=timings, **counts)
-        if self.auto_tare and len(vision.contacts.centres_mm):
-            self.tare_left = 0
-        taring = self.tare_left > 0
+        touched = self.auto_tare and len(vision.contacts.centres_mm) > 0
+        if self.started_touched is None and self.auto_tare:
+            self.started_touched = touched
+        if touched and not self.started_touched:
+            self.tare_left = 0  # the robot was seen free first, and is touched now: tared
+        # a recording that starts touched is tared on the first frames it shows free
+        taring = self.tare_left > 0 and not touched
         detected = vision.contacts if not taring and self.known_contact is None else None
         centres = np.zeros((0, 3)) if detected is None else detected.centres_mm
         sighted = None if detected is None else ~detected.occluded
@@ -254,7 +260,7 @@ class ForceSensor:
         saved = (self.state, self.tensions)
         try:
             outcome = self.settle(vision.matches, lambda: self._match(segmentation),
-                                  contact_nodes, clock, axes, relocate)
+                                  contact_nodes, clock, axes, relocate, taring)
         except SolverError:
             self.state, self.tensions = saved
             self.linear = None
@@ -291,19 +297,20 @@ class ForceSensor:
     def settle(self, matches: FeatureMatches, rematch: Callable[[], FeatureMatches],
                contact_nodes: np.ndarray, clock: _Clock | None = None,
                contact_axes: np.ndarray | None = None,
-               relocate: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None
-               ) -> Update | None:
+               relocate: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None,
+               taring: bool | None = None) -> Update | None:
         """One frame's FE updates from its first matches at the current configuration:
         update, then rematch() at the moved configuration and update again, up to
         updates_per_frame times, stopping once an update moved no feature point more than
         rematch_mm. Contact forces act at the mesh nodes contact_nodes (c,) (or at the known
         contact), with force_model "axis" along contact_axes (c, 3) where not NaN (the
         pushing object's axis), both given again by relocate() at the moved configuration
-        when given; while taring there are none, and the caller adds the frame to the tare
-        (add_tare) once its fit is judged. Returns the last update, or None when too few
-        features match (the configuration is then that of the updates made)."""
+        when given; while taring (the frame is a tare frame; None: while tare frames are
+        left) there are none, and the caller adds the frame to the tare (add_tare) once its
+        fit is judged. Returns the last update, or None when too few features match (the
+        configuration is then that of the updates made)."""
         clock = clock or _Clock({})
-        taring = self.tare_left > 0
+        taring = self.tare_left > 0 if taring is None else taring
         outcome: Update | None = None
         for _ in range(self.settings.estimation.updates_per_frame):
             if outcome is not None:
