@@ -534,9 +534,9 @@ class ForceSensor:
         feature_positions, _ = self.feature_geometry()
         matched_positions = feature_positions[update.matches.matched]
         positions = np.array([points[group[0]] for group in columns.groups]).reshape(-1, 3)
+        nodes = columns.points.node_indices[[group[0] for group in columns.groups], 0]
         if len(centres_mm):
-            # each group's node, and the first contact centre placed on it
-            nodes = columns.points.node_indices[[group[0] for group in columns.groups], 0]
+            # the first contact centre placed on each group's node
             placed = nodes[:, None] == self.placed_nodes[None]
             centre = placed.argmax(axis=1)
             seen = placed.any(axis=1) & (True if sighted is None else sighted[centre])
@@ -549,7 +549,7 @@ class ForceSensor:
         for i, group in enumerate(columns.groups):
             vector = update.forces_n[group] @ columns.directions[group]
             if len(centres_mm) and np.linalg.norm(vector) > HELD_MIN_N:
-                pushing.append(columns.points.node_indices[group[0], 0])
+                pushing.append(nodes[i])
             near = np.linalg.norm(matched_positions - positions[i], axis=1) \
                 <= LOCAL_RESIDUAL_RADIUS_MM
             local = update.residual_mm[near] if near.any() else update.residual_mm

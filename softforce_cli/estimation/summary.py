@@ -67,7 +67,7 @@ class SenseSummary:
         if self.first_time_s is None:
             self.first_time_s = estimate.time_s
         self.last_time_s = estimate.time_s
-        fitted = estimate.fit_rms_mm == estimate.fit_rms_mm  # not NaN
+        fitted = not np.isnan(estimate.fit_rms_mm)
         if self._first_fit_mm is None and fitted:
             self._first_fit_mm = estimate.fit_rms_mm
         if estimate.status == "ok":
