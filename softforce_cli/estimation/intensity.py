@@ -2,7 +2,8 @@
 
     min_lam  1/2 |W_el lam + delta_e_free^N - delta_c^N|^2 + 1/2 rho |lam_f|^2      (11), (12)
     s.t.     lam_a = lam_a^r                               force-controlled cables  (13)
-             W_aa lam_a + W_af lam_f + delta_a_free = delta_a^r   displacement ones  (14)
+             W_aa lam_a + W_af lam_f + delta_a_free = delta_a^r   taut displacement ones (14)
+             lam_a = 0                                      slack displacement ones
              lam_f >= 0                                     unilateral contacts
              mu lam_n >= |(lam_t1, lam_t2)|                 friction cones
 
@@ -15,6 +16,15 @@ and does not depend on the robot's stiffness.
 A contact in a friction cone has three columns, along its inward normal and two tangents
 (lam_n, lam_t1, lam_t2): Coulomb's law bounds the tangential force by mu times the normal
 one, a second-order cone, which Clarabel handles as it does the sign bounds.
+
+A cable can pull but not push: a displacement-controlled cable whose attachment comes closer
+than its input asks goes slack (no tension) instead of holding its length with a negative
+tension, as the paper's eq. 14 alone would have it. Which cables are taut is an active set,
+the one the FE statics uses (fem.statics): release the cables that would push, hold again
+those that would be stretched beyond their input, until neither happens. On a robot whose
+cables all stay taut (the Diamond under gravity) this is eq. 14 itself; on a finger with
+antagonistic cables, the slack ones pushed with up to 3.2 N and its probes read 85% off
+(median) instead of 17% (docs/sensing_studies.md, "Another robot: a finger").
 """
 
 from __future__ import annotations
@@ -33,6 +43,10 @@ from softforce_cli.errors import SolverError
 RELATIVE_REGULARIZATION = 1e-6
 # Interior-point tolerances: forces to about a micronewton.
 CLARABEL_TOLERANCE = 1e-10
+# A taut cable's tension below -this pushes (slack it); a slack one's end further than this
+# beyond its input is stretched (hold it): round-off of the QP's solution, not physics.
+SLACK_TOLERANCE_N = 1e-7
+SLACK_TOLERANCE_MM = 1e-7
 
 
 @dataclass(frozen=True)
@@ -96,24 +110,48 @@ def solve_intensities(
     rho = regularization * float(np.mean(problem.W_ef**2)) * len(rhs) if f else 0.0
     Q = W.T @ W + np.diag(np.r_[np.zeros(a), np.full(f, rho)])
     c = -W.T @ rhs
-    A, b = _actuation_rows(problem, control, np.asarray(actuation, dtype=float))
+    actuation = np.asarray(actuation, dtype=float)
+    displacement = np.array([kind == "displacement" for kind in control], dtype=bool)
+    cable_rows = np.hstack([problem.W_aa, problem.W_af])
+    taut = displacement.copy()
+    for _ in range(2 ** int(displacement.sum())):
+        lam = _qp_with_taut(problem, Q, c, actuation, displacement, taut)
+        gap = cable_rows @ lam + problem.delta_a_free - actuation  # > 0: shorter than asked
+        pushing = taut & (lam[:a] < -SLACK_TOLERANCE_N)
+        stretched = displacement & ~taut & (gap < -SLACK_TOLERANCE_MM)
+        if not pushing.any() and not stretched.any():
+            break
+        taut = (taut & ~pushing) | stretched
+    return Intensities(lam[:a], lam[a:], W @ lam - rhs)
+
+
+def _qp_with_taut(problem: IntensityProblem, Q: np.ndarray, c: np.ndarray,
+                  actuation: np.ndarray, displacement: np.ndarray,
+                  taut: np.ndarray) -> np.ndarray:
+    """lam of the QP with the displacement-controlled cables `taut` (a,) bool held at their
+    inputs (eq. 14) and the others slack (zero tension)."""
+    a = problem.W_ea.shape[1]
+    A, b = _actuation_rows(problem, actuation, displacement, taut)
     lam = _equality_qp(Q, c, A, b)
     if lam is None or not problem.feasible(lam[a:]):
         cones = a + np.asarray(problem.cones, dtype=np.int64).reshape(-1, 3)
         lam = _bounded_qp(Q, c, A, b, a + np.flatnonzero(problem.unilateral), cones,
                           problem.friction_coefficient)
-    return Intensities(lam[:a], lam[a:], W @ lam - rhs)
+    lam[:a][displacement & ~taut] = 0.0  # exactly, not the solver's round-off
+    return lam
 
 
 def _actuation_rows(
-    problem: IntensityProblem, control: tuple[str, ...], actuation: np.ndarray
+    problem: IntensityProblem, actuation: np.ndarray, displacement: np.ndarray,
+    taut: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Equality rows A lam = b of eq. 13 (force control) and eq. 14 (displacement control)."""
+    """Equality rows A lam = b: eq. 14 for the taut displacement-controlled cables, eq. 13
+    for the force-controlled ones, zero tension for the slack ones."""
     a, f = problem.W_ea.shape[1], problem.W_ef.shape[1]
-    displacement = np.array([c == "displacement" for c in control], dtype=bool)
-    A = np.where(displacement[:, None], np.hstack([problem.W_aa, problem.W_af]),
+    held = displacement & taut
+    A = np.where(held[:, None], np.hstack([problem.W_aa, problem.W_af]),
                  np.hstack([np.eye(a), np.zeros((a, f))]))
-    b = np.where(displacement, actuation - problem.delta_a_free, actuation)
+    b = np.where(held, actuation - problem.delta_a_free, np.where(displacement, 0.0, actuation))
     return A, b
 
 
