@@ -380,11 +380,11 @@ class ForceSensor:
         frame's contacts nearest it, kept within the same margin, so that a held contact
         keeps its node from frame to frame (fewer FE linearisations: 74 against 78 on the
         12-location probes at 1280x720)."""
-        placed = self._contact_nodes(centres_mm, self._carried(centres_mm), sighted)
+        placed = self._contact_nodes(centres_mm, self._carried(centres_mm), sighted, axes)
 
         def relocate() -> tuple[np.ndarray, np.ndarray]:
             nonlocal placed
-            placed = self._contact_nodes(centres_mm, placed, sighted)
+            placed = self._contact_nodes(centres_mm, placed, sighted, axes)
             self.placed_nodes = placed
             return _acting(placed, axes)
 
@@ -414,12 +414,13 @@ class ForceSensor:
         return self.placed_nodes[np.asarray(nearest, dtype=np.int64)]
 
     def _contact_nodes(self, centres_mm: np.ndarray, placed: np.ndarray | None = None,
-                       sighted: np.ndarray | None = None) -> np.ndarray:
+                       sighted: np.ndarray | None = None,
+                       axes: np.ndarray | None = None) -> np.ndarray:
         """(c,) the mesh node where each contact at centres_mm (c, 3) acts at the current
         configuration (contact_nodes: the surface node on the camera's line of sight
-        through it where sighted (c,), the nearest elsewhere), or with contact_at =
-        "feature" the paper's nearest feature point; placed (c,) the nodes before, kept
-        within the margin."""
+        through it where sighted (c,), the nearest elsewhere, on a face the object's axis
+        (c, 3) can push), or with contact_at = "feature" the paper's nearest feature point;
+        placed (c,) the nodes before, kept within the margin."""
         if not len(centres_mm):
             return np.zeros(0, dtype=np.int64)
         positions, normals = self.mesh_geometry()
@@ -427,7 +428,8 @@ class ForceSensor:
             return self.robot.feature_nodes[
                 nearest_features(centres_mm, positions[self.robot.feature_nodes])]
         return contact_nodes(centres_mm, self.transform.translation_mm, positions, normals,
-                             self.robot.mesh.surface_nodes, placed, sighted)
+                             self.robot.mesh.surface_nodes, placed, sighted, axes,
+                             self.settings.estimation.max_axis_angle_deg)
 
     @property
     def tare_offsets_mm(self) -> np.ndarray:
@@ -578,7 +580,9 @@ class _Clock:
 def contact_nodes(centres_mm: np.ndarray, camera_mm: np.ndarray, positions_mm: np.ndarray,
                   normals: np.ndarray, surface_nodes: np.ndarray,
                   placed: np.ndarray | None = None,
-                  sighted: np.ndarray | None = None) -> np.ndarray:
+                  sighted: np.ndarray | None = None,
+                  axes: np.ndarray | None = None,
+                  max_axis_angle_deg: float = 60.0) -> np.ndarray:
     """(c,) the surface node under each contact centre (c, 3) mm, seen from the camera at
     camera_mm (3,): among the surface nodes within CONTACT_REACH_MM of the centre's nearest
     that face the camera, the one nearest the line of sight through the centre.
@@ -595,15 +599,30 @@ def contact_nodes(centres_mm: np.ndarray, camera_mm: np.ndarray, positions_mm: n
     (c,) bool, default all: contacts that are not (a hidden tip found on the robot's
     surface, maybe on a side the camera does not face) take the node nearest in space,
     under the same margin. positions_mm, normals (m, 3): the mesh's nodes and outward unit
-    normals."""
+    normals.
+
+    axes (c, 3), NaN where unknown: the axis of the object pushing at each contact
+    (vision.contacts.object_axes). Where known, only the nodes whose inward normal lies
+    within max_axis_angle_deg of it are candidates, if any are: a rod pressing a face
+    cannot push a side face beside it. On a finger seen obliquely, a probe pressing the top
+    face 6 mm from its edge was otherwise placed on the side face below the edge (the line
+    of sight through the touch meets it first before the push has bent the model), where
+    its force, along that face's normal, could not dent the top: 0.2 N read 0-0.1 N on two
+    frames, three with the camera calibrated from markers (docs/sensing_studies.md,
+    "Another robot: a finger")."""
     surface = positions_mm[surface_nodes]
     tree = cKDTree(surface)
     nearest_mm, _ = tree.query(centres_mm)
     sight = centres_mm - np.asarray(camera_mm, dtype=float)
     sight /= np.linalg.norm(sight, axis=1, keepdims=True)
+    axes = np.full((len(centres_mm), 3), np.nan) if axes is None else np.asarray(axes, float)
     chosen = np.empty(len(centres_mm), dtype=np.int64)
     for k, reach in enumerate(tree.query_ball_point(centres_mm, nearest_mm + CONTACT_REACH_MM)):
         reach = np.asarray(reach, dtype=np.int64)
+        if np.isfinite(axes[k]).all():
+            pushable = -normals[surface_nodes[reach]] @ axes[k] >= np.cos(
+                np.radians(max_axis_angle_deg))
+            reach = reach[pushable] if pushable.any() else reach
         if sighted is not None and not sighted[k]:  # by the distance in space
             candidates = reach
             distance_mm = np.linalg.norm(surface[reach] - centres_mm[k], axis=1)
