@@ -3,6 +3,7 @@ where a detected contact acts (estimation.sensing.contact_nodes)."""
 
 from pathlib import Path
 
+import meshio
 import numpy as np
 import pytest
 
@@ -18,6 +19,7 @@ from softforce_cli.estimation.sensing import (
 from softforce_cli.estimation.settings import EstimationSettings, SenseSettings
 from softforce_cli.fem.statics import Equilibrium, PointLoads, solve_equilibrium
 from softforce_cli.model.robot import Robot, load_robot
+from softforce_cli.model.structured import box_mesh
 from softforce_cli.vision.feature_matching import FeatureMatches
 
 ROBOT = Path(__file__).parents[1] / "sample_data" / "diamond" / "diamond.toml"
@@ -118,6 +120,86 @@ def test_fe_updates_converge_to_the_applied_load(force_model, relinearize_mm, to
     np.testing.assert_allclose(sensor.tensions, truth.cable_tensions_n, rtol=tolerance)
 
 
+def test_qp_slackens_a_cable_that_would_push():
+    """A displacement-controlled cable that eq. 14 alone would hold with a negative tension
+    goes slack (zero tension, its end closer than its input); one that a released state
+    would stretch beyond its input is held."""
+    problem = IntensityProblem(
+        W_ea=np.array([[1.0, 0.2], [0.3, 1.0], [0.5, 0.5]]), W_ef=np.zeros((3, 0)),
+        delta_e_free=np.zeros(3), observed_mm=np.array([1.0, 0.3, 0.6]),
+        W_aa=np.array([[2.0, 0.5], [0.5, 1.0]]), W_af=np.zeros((2, 0)),
+        delta_a_free=np.array([0.0, 1.5]), unilateral=np.zeros(0, bool),
+    )
+    # held at input 0, the second cable needs -1.5 mm of motion: a push
+    pulled = solve_intensities(problem, ("displacement", "displacement"), np.array([1.0, 0.0]))
+    assert pulled.cable_tensions_n[1] == 0.0
+    np.testing.assert_allclose(pulled.cable_tensions_n[0], 0.5, atol=1e-12)  # W_aa 2 x 0.5 = 1
+    shortening = problem.W_aa @ pulled.cable_tensions_n + problem.delta_a_free
+    assert shortening[1] > 0.0  # the slack cable's end comes closer than its input asks
+    # asked for more shortening than it gets free, the same cable pulls
+    held = solve_intensities(problem, ("displacement", "displacement"), np.array([1.0, 2.0]))
+    assert held.cable_tensions_n.min() > 0.0
+    np.testing.assert_allclose(problem.W_aa @ held.cable_tensions_n + problem.delta_a_free,
+                               [1.0, 2.0], atol=1e-12)
+
+
+FINGER_TOML = """name = "finger"
+[mesh]
+path = "finger.vtu"
+element = "p1"
+[material]
+law = "corotational"
+young_modulus_mpa = 0.6
+poisson_ratio = 0.45
+total_mass_kg = 0.03
+gravity_mm_s2 = [0.0, 0.0, -9810.0]
+[[fixed]]
+box_mm = [-1.0, -10.0, -10.0, 1.0, 10.0, 10.0]
+[[cable]]
+name = "top"
+path_mm = [[78.0, 0.0, 6.0]]
+pull_point_mm = [-5.0, 0.0, 6.0]
+max = 6.0
+[[cable]]
+name = "bottom"
+path_mm = [[78.0, 0.0, -6.0]]
+pull_point_mm = [-5.0, 0.0, -6.0]
+max = 6.0
+[features]
+count = 40
+"""
+
+
+def test_an_antagonist_cable_goes_slack_and_the_push_is_read(tmp_path):
+    """A finger with antagonistic cables, each a straight chord to the tip: pulling the top
+    one curls the finger up, the bottom chord shortens and goes slack. From exact
+    observations of the FE equilibrium (its own active set on the cables) under a 0.2 N
+    push at the tip, the updates reach the push and the tensions, the slack cable's zero
+    included. Holding every displacement-controlled cable (eq. 14 alone) made the bottom
+    cable push with 3.3 N, and the push read 0.73 N along the normal (5.2 N sideways with
+    the free 3D force)."""
+    nodes, tets = box_mesh((80.0, 16.0, 16.0), (10, 2, 2), (0.0, -8.0, -8.0))
+    meshio.write(tmp_path / "finger.vtu", meshio.Mesh(nodes, [("tetra", tets)]))
+    (tmp_path / "finger.toml").write_text(FINGER_TOML)
+    robot = load_robot(tmp_path / "finger.toml")
+    actuation = np.array([3.0, 0.0])
+    surface = robot.mesh.surface_nodes
+    node = int(surface[np.argmin(np.linalg.norm(robot.mesh.nodes_mm[surface] - [70, 0, 8],
+                                                axis=1))])
+    force = np.array([0.0, 0.0, -0.2])
+    loads = PointLoads(robot.attach(robot.rest_nodes_mm[node][None]), force[None])
+    truth = solve_equilibrium(robot.fe_model, robot.cable_inputs(actuation), loads)
+    assert truth.cable_tensions_n[0] > 0.5 and truth.cable_tensions_n[1] == 0.0
+    settings = SenseSettings(estimation=EstimationSettings(force_model="3d",
+                                                           relinearize_mm=0.0))
+    sensor = ForceSensor(robot, RigidTransform(np.eye(3), np.zeros(3)), actuation, settings)
+    for _ in range(6):
+        update = sensor.update(_exact_matches(sensor, truth), np.array([node]))
+    estimated = update.forces_n @ update.columns.directions
+    assert np.linalg.norm(estimated - force) < 0.01 * 0.2
+    np.testing.assert_allclose(sensor.tensions, truth.cable_tensions_n, atol=0.01)
+
+
 # the camera 600 mm above the robot's base, looking down on it (contact_nodes needs only
 # its position, the transform's translation)
 CAMERA_ABOVE = RigidTransform(np.eye(3), np.array([0.0, 0.0, 600.0]))
@@ -211,6 +293,30 @@ def test_a_hidden_tip_takes_the_node_nearest_in_space():
     assert contact_nodes(tip, camera, positions, normals, surface)[0] != underside
     hidden = contact_nodes(tip, camera, positions, normals, surface, sighted=np.array([False]))
     assert hidden[0] == underside
+
+
+def test_a_rod_pushes_only_faces_it_can_press():
+    """(contact_nodes, axes) A rod pressing a top face 6 mm from its edge, seen from the
+    side and above, dents the skin 4 mm below where the model's face still is: the line of
+    sight through the contact's centre passes nearest a node of the side face below the
+    edge (1.6 mm against 3.8 for the top face's), which the rod's axis, straight down,
+    cannot push. Given the axis, the contact acts on the top face; without it, on the side
+    face, as the line alone would have it."""
+    x = np.array([-5.0, 0.0, 5.0])
+    top = np.column_stack([np.tile(x, 2), np.repeat([-5.0, 0.0], 3), np.zeros(6)])
+    side = np.column_stack([np.tile(x, 2), np.full(6, -10.0), np.repeat([-3.0, -8.0], 3)])
+    positions = np.vstack([top, side])
+    normals = np.vstack([np.tile([0.0, 0.0, 1.0], (6, 1)), np.tile([0.0, -1.0, 0.0], (6, 1))])
+    surface = np.arange(12)
+    camera = np.array([0.0, -400.0, 300.0])
+    touch = np.array([0.0, -6.0, -4.0])
+    sight = (touch - camera) / np.linalg.norm(touch - camera)
+    centre = (touch - 5.0 * sight)[None]
+    down = np.array([[0.0, 0.0, -1.0]])
+    assert contact_nodes(centre, camera, positions, normals, surface)[0] == 7  # side (0, -10, -3)
+    assert contact_nodes(centre, camera, positions, normals, surface, axes=down)[0] == 1
+    unknown = np.full((1, 3), np.nan)
+    assert contact_nodes(centre, camera, positions, normals, surface, axes=unknown)[0] == 7
 
 
 def test_a_contact_keeps_its_node_within_the_margin():
