@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import gmsh
@@ -71,9 +72,6 @@ def diamond_mesh(
     -> nodes (n, 3) float64 mm (z up, robot frame, origin at base centre), tets (m, 4)
     int64 positively oriented, every node used. The same arguments give identical arrays.
 
-    gmsh is initialised and finalised here unless the caller already holds a gmsh session;
-    then a temporary model is added and removed, but the mesh options set here stay set.
-
     Raises
     ------
     ModelError
@@ -83,22 +81,42 @@ def diamond_mesh(
         raise ModelError(
             f"unknown mesh resolution {resolution!r}: use one of {', '.join(MESH_SIZE_MM)}"
         )
+    size_mm = MESH_SIZE_MM[resolution] if mesh_size_mm is None else mesh_size_mm
+    return solid_mesh(lambda: _build_solid(geometry), size_mm, "the Diamond robot")
+
+
+def solid_mesh(build_solid: Callable[[], None], mesh_size_mm: float,
+               what: str) -> tuple[np.ndarray, np.ndarray]:
+    """Tetrahedral mesh of the one solid that build_solid() adds to the current gmsh model
+    with gmsh.model.occ (and synchronizes), at characteristic length mesh_size_mm, on one
+    thread so that the same solid gives identical arrays. `what` names the solid in errors.
+
+    -> nodes (n, 3) float64 mm, tets (m, 4) int64 positively oriented, every node used.
+
+    gmsh is initialised and finalised here unless the caller already holds a gmsh session;
+    then a temporary model is added and removed, but the mesh options set here stay set.
+
+    Raises
+    ------
+    ModelError
+        When gmsh cannot build or mesh the solid.
+    """
     with _GMSH_LOCK:
         owns_gmsh = not gmsh.isInitialized()
         if owns_gmsh:
             # Not interruptible: installing a SIGINT handler fails outside the main thread.
             gmsh.initialize(readConfigFiles=False, interruptible=False)
         try:
-            gmsh.model.add("softforce_diamond")
-            _set_options(MESH_SIZE_MM[resolution] if mesh_size_mm is None else mesh_size_mm)
-            _build_solid(geometry)
+            gmsh.model.add("softforce_solid")
+            _set_options(mesh_size_mm)
+            build_solid()
             gmsh.model.mesh.generate(3)
-            nodes, tets = _extract_tets()
+            nodes, tets = _extract_tets(what)
         except ModelError:
             raise
         except Exception as error:  # gmsh raises bare Exception with its last message
             message = str(error).splitlines()[0] if str(error) else type(error).__name__
-            raise ModelError(f"gmsh failed to mesh the Diamond robot: {message}") from error
+            raise ModelError(f"gmsh failed to mesh {what}: {message}") from error
         finally:
             if owns_gmsh:
                 gmsh.finalize()
@@ -176,12 +194,12 @@ def _bar_profile(start: tuple[float, float], end: tuple[float, float], thickness
     return tag
 
 
-def _extract_tets() -> tuple[np.ndarray, np.ndarray]:
+def _extract_tets(what: str) -> tuple[np.ndarray, np.ndarray]:
     """All nodes and linear tetrahedra of the current gmsh model, as 0-based indices."""
     node_tags, coords, _ = gmsh.model.mesh.getNodes()
     tet_tags = gmsh.model.mesh.getElementsByType(4)[1]
     if len(tet_tags) == 0:
-        raise ModelError("gmsh produced no tetrahedra for the Diamond robot")
+        raise ModelError(f"gmsh produced no tetrahedra for {what}")
     index = np.zeros(int(node_tags.max()) + 1, dtype=np.int64)
     index[node_tags.astype(np.int64)] = np.arange(len(node_tags))
     nodes = np.asarray(coords, dtype=np.float64).reshape(-1, 3)
