@@ -17,7 +17,10 @@ nu = 0.45, its own weight.
 - probes of 0.15-0.3 N on the top face, one on the side face, two at once, at three
   actuations;
 - through the estimator's full model and through its reduced model (`softforce model
-  reduce` with the defaults, trained once, about a minute).
+  reduce` with the defaults, trained once, about a minute);
+- `softforce diagnose` on two recordings of ramps and holds on each cable (17 states, each
+  held two frames, markers published): a clean one, and one whose truth conceals a 2 mm
+  slack on the top cable.
 
 Writes out/study_finger/ (meshes, robot files, scenarios, recordings, sense outputs,
 results.json); docs/sensing_studies.md ("Another robot: a finger") quotes it.
@@ -39,6 +42,7 @@ sys.path.insert(0, str(ROOT))
 from softforce_cli.calibration.recording_markers import markers_from_recording  # noqa: E402
 from softforce_cli.calibration.result import result_to_json  # noqa: E402
 from softforce_cli.calibration.robust import calibrate_checked  # noqa: E402
+from softforce_cli.diagnosis.run import DiagnoseInputs, run_diagnosis  # noqa: E402
 from softforce_cli.estimation.session import run_sensing  # noqa: E402
 from softforce_cli.estimation.setup import SenseInputs, prepare_sensing  # noqa: E402
 from softforce_cli.estimation.truth_errors import compare_with_truth, pose_from_truth, read_truth  # noqa: E402
@@ -81,6 +85,11 @@ PROBE_FRAMES = [
 ]
 MARKER_ACTUATIONS = [((0, 0, 0), 2), ((4, 0, 0), 1), ((0, 3, 0), 1), ((0, 0, 5), 1),
                      ((3, 0, 3), 1)]
+# diagnose: loading and unloading ramps on each cable, every state held two frames
+DIAGNOSE_ACTUATIONS = [(0, 0, 0), (2, 0, 0), (4, 0, 0), (6, 0, 0), (4, 0, 0), (2, 0, 0),
+                       (0, 0, 0), (0, 0, 3), (0, 0, 6), (0, 0, 3), (0, 0, 0), (0, 3, 0),
+                       (0, 5, 0), (0, 3, 0), (0, 0, 0), (3, 0, 3), (0, 0, 0)]
+SLACK = '\n[[effect]]\nname = "cable_slack"\ncable = "top"\nslack_mm = 2.0\n'
 
 
 def build_finger() -> None:
@@ -148,11 +157,13 @@ def reduced_robot(estimator: Path) -> Path:
     return robot
 
 
-def scenario(name: str, seed: int, frames: list, markers: bool) -> str:
+def scenario(name: str, seed: int, frames: list, markers: bool, effects: str = "",
+             interval_s: float = 0.0333) -> str:
     text = (f'name = "{name}"\nrobot = "finger_truth.toml"\nlaw = "neo-hookean"\n'
-            f"seed = {seed}\nframe_interval_s = 0.0333\n\n{CAMERA}")
+            f"seed = {seed}\nframe_interval_s = {interval_s}\n\n{CAMERA}")
     if markers:
         text += "\n[markers]\npublish = true\nsigma_mm = 0.5\n"
+    text += effects
     for actuation, repeat, *probes in frames:
         text += f"\n[[frame]]\nactuation = {[float(v) for v in actuation]}\nrepeat = {repeat}\n"
         if probes and probes[0]:
@@ -189,6 +200,30 @@ def sense(probes: Path, robot: Path, calibration: Path, name: str) -> dict:
             "contacts": contacts}
 
 
+def diagnose(estimator: Path, calibration: Path) -> dict:
+    """The verdict, noise floor and first effect of `softforce diagnose` on the clean and
+    the slack recordings."""
+    results = {}
+    frames = [(a, 2, []) for a in DIAGNOSE_ACTUATIONS]
+    for seed, (name, effects) in enumerate((("clean", ""), ("slack", SLACK)), start=21):
+        path = recording(f"diagnose_{name}", scenario(f"finger_diagnose_{name}", seed, frames,
+                                                      True, effects, interval_s=0.5))
+        began = time.perf_counter()
+        result = run_diagnosis(DiagnoseInputs((path,), estimator, calibration,
+                                              OUT / f"diagnose_{name}", force=True),
+                               lambda *_: None)
+        document = json.loads((OUT / f"diagnose_{name}" / "diagnosis.json").read_text())
+        first = document["effects"][0] if document["effects"] else {}
+        results[name] = {
+            "verdict": result.verdict, "noise_floor_mm": document["noise_floor_mm"],
+            "seconds": round(time.perf_counter() - began, 1),
+            "first_effect": {key: first.get(key) for key in
+                             ("name", "parameters", "heldout_rms_before_mm",
+                              "heldout_rms_after_mm")},
+            "summary": document["summary"]}
+    return results
+
+
 def main() -> None:
     estimator, _ = write_robots()
     markers = recording("markers", scenario("finger_markers", 5,
@@ -206,10 +241,12 @@ def main() -> None:
                "truth_pose": sense(probes, estimator, pose, "sense_truth_pose"),
                "reduced_calibrated": sense(probes, reduced, calibration,
                                            "sense_reduced_calibrated"),
-               "reduced_truth_pose": sense(probes, reduced, pose, "sense_reduced_truth_pose")}
+               "reduced_truth_pose": sense(probes, reduced, pose, "sense_reduced_truth_pose"),
+               "diagnose": diagnose(estimator, calibration)}
     (OUT / "results.json").write_text(json.dumps(results, indent=1))
+    print("diagnose", json.dumps(results["diagnose"], indent=1))
     for name in results:
-        if name == "calibration_rms_mm":
+        if name in ("calibration_rms_mm", "diagnose"):
             continue
         summary = {k: v for k, v in results[name].items() if k != "contacts"}
         print(name, json.dumps(summary))
