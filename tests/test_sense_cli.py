@@ -4,6 +4,7 @@ inputs."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 from pathlib import Path
 
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 
 from softforce_cli.calibration.result import read_calibration
+from softforce_cli.camera.frame import Actuation
 from softforce_cli.errors import SensingError
 from softforce_cli.estimation.results import FrameEstimate
 from softforce_cli.estimation.sensing import ForceSensor
@@ -18,6 +20,7 @@ from softforce_cli.estimation.settings import EstimationSettings, SenseSettings
 from softforce_cli.estimation.summary import POOR_FIT_MM, SenseSummary
 from softforce_cli.estimation.truth_errors import compare_with_truth, pose_from_truth, read_truth
 from softforce_cli.io.mcap_reader import iter_frames
+from softforce_cli.io.mcap_writer import write_recording
 from softforce_cli.model.robot import load_robot
 from softforce_cli.vision.settings import VisionSettings
 from tests.cli_runner import assert_one_line_error, softforce
@@ -142,6 +145,34 @@ def test_calibration_of_another_robot_is_refused(tmp_path):
     assert_one_line_error(result, "'trunk'")
 
 
+@pytest.mark.parametrize("names", [(), None])
+def test_a_robot_without_cables_is_sensed(tmp_path, names):
+    """A passive soft body (no [[cable]]): its recording's /robot/actuation names no cable,
+    or there is none. Both are sensed (an empty actuation had been refused as
+    "displacement-controlled but the robot file's cables are -controlled"); the QP then
+    has only the contacts' forces as unknowns."""
+    text = SAMPLE_ROBOT.read_text().replace(
+        'path = "diamond_coarse.vtu"', f'path = "{SAMPLE_ROBOT.parent / "diamond_coarse.vtu"}"')
+    start, end = text.index("[[cable]]"), text.index("[features]")
+    robot = tmp_path / "passive.toml"
+    robot.write_text(text[:start] + text[end:])
+    recording = tmp_path / "passive.mcap"
+    actuation = None if names is None else Actuation(names, "displacement", np.zeros(0))
+    write_recording((dataclasses.replace(f, actuation=actuation) for f in iter_frames(PROBES)),
+                    recording)
+    calibration = pose_calibration(PROBES.with_suffix("").with_suffix(".truth.json"), tmp_path)
+    result = softforce("sense", recording, "--robot", robot, "--calibration", calibration,
+                       "-o", tmp_path / "out", "--tare", "1")
+    assert result.returncode == 0, result.stderr
+    rows = csv.DictReader((tmp_path / "out" / "frames.csv").read_text().splitlines())
+    statuses = [row["status"] for row in rows]
+    # the Diamond without its cables sags away from the actuated recording: one frame
+    # matches too few features; the point is that it runs
+    assert statuses[0] == "tare" and statuses.count("ok") >= 2
+    frames = json.loads((tmp_path / "out" / "sense.json").read_text())["frames"]
+    assert all(frame["cable_tensions_n"] == [] for frame in frames)
+
+
 def test_missing_recording_and_settings_fail_with_one_line(probes_run, tmp_path):
     _, _, calibration = probes_run
     missing = softforce("sense", tmp_path / "none.mcap", "--robot", SAMPLE_ROBOT,
@@ -166,11 +197,6 @@ def test_missing_recording_and_settings_fail_with_one_line(probes_run, tmp_path)
 
 
 def test_recording_without_actuation_is_refused_when_the_cables_need_it(tmp_path):
-    import dataclasses
-
-    from softforce_cli.io.mcap_reader import iter_frames
-    from softforce_cli.io.mcap_writer import write_recording
-
     bare = tmp_path / "bare.mcap"
     write_recording((dataclasses.replace(f, actuation=None) for f in iter_frames(PROBES)), bare)
     calibration = pose_calibration(PROBES.with_suffix("").with_suffix(".truth.json"), tmp_path)

@@ -44,7 +44,7 @@ def actuation_mismatch(actuation: Actuation | None,
     if tuple(actuation.names) != tuple(names):
         return (f"the actuation names {list(actuation.names)} are not the robot's cables "
                 f"{list(names)} (same order)")
-    if controls != {actuation.control}:
+    if names and controls != {actuation.control}:  # a robot without cables takes any
         return (f"the actuation is {actuation.control}-controlled but the robot file's cables "
                 f"are {', '.join(sorted(controls))}-controlled")
     return None
