@@ -202,6 +202,25 @@ def test_mixed_control_is_calibrated_per_cable(coarse):
     assert result_to_dict(result)["actuation"]["controls"][1] == "force"
 
 
+def test_a_robot_without_cables_is_calibrated(tmp_path):
+    """A passive body (no [[cable]]): the pose alone, recovered from its markers at its own
+    equilibrium under gravity; the actuation QP has no unknown (it had failed on reshaping
+    its empty constraint rows, and the check of their relaxation on an empty array)."""
+    text = SAMPLE_ROBOT.read_text().replace(
+        'path = "diamond_coarse.vtu"', f'path = "{SAMPLE_ROBOT.parent / "diamond_coarse.vtu"}"')
+    start, end = text.index("[[cable]]"), text.index("[features]")
+    (tmp_path / "passive.toml").write_text(text[:start] + text[end:])
+    robot = load_robot(tmp_path / "passive.toml")
+    positions = solve_equilibrium(robot.fe_model, robot.cable_inputs(np.zeros(0))).positions_mm
+    truth = paper_transform()
+    result = calibrate(robot, observed_markers(robot, positions, truth))
+    assert result.converged and result.residual_rms_mm <= 1e-3
+    assert len(result.actuation) == 0
+    transform = result.robot_from_camera
+    assert rotation_angle_deg(transform.rotation.T @ truth.rotation) <= 1e-4
+    assert np.linalg.norm(transform.translation_mm - truth.translation_mm) <= 1e-3
+
+
 def test_paper_alternation_converges_more_slowly(coarse, coarse_truth):
     """Without the rigid projection (the paper's plain alternation of SVD and QP)."""
     observed = observed_markers(coarse, coarse_truth, paper_transform())

@@ -465,6 +465,12 @@ def test_cli_reduce_resumes_from_snapshots_and_writes_a_usable_file(beam, tmp_pa
     loose = softforce("model", "reduce", toml, "-o", tmp_path / "z.rom.npz",
                       "--ecsw-tolerance", "1.5")
     assert_one_line_error(loose, "--ecsw-tolerance 1.5 must be in [0, 1)")
+    # a passive body: its training would span no actuation box (it had failed reshaping one)
+    text = toml.read_text()
+    passive = tmp_path / "passive.toml"
+    passive.write_text(text[:text.index("[[cable]]")] + text[text.index("[features]"):])
+    no_cable = softforce("model", "reduce", passive, "-o", tmp_path / "p.rom.npz")
+    assert_one_line_error(no_cable, "has no [[cable]]")
 
 
 def test_a_sampling_too_loose_for_the_robot_is_reported(beam):

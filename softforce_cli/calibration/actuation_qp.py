@@ -97,7 +97,8 @@ def constraint_rows(
             add(-eye[i], 0.0, i, False)
             add(W_aa[i], bounds.upper[i] - delta_a_free[i], i, True)
             add(-W_aa[i], delta_a_free[i] - bounds.lower[i], i, True)
-    return np.array(rows).reshape(-1, a), np.array(limits), cables, np.array(user, dtype=bool)
+    return (np.array(rows, dtype=float).reshape(len(rows), a), np.array(limits, dtype=float),
+            cables, np.array(user, dtype=bool))
 
 
 @dataclass(frozen=True)

@@ -183,7 +183,8 @@ def calibrate(
                         SETTLE_MM)
     history, durations, converged = loop.run(state, progress)
     final = loop.accepted
-    if final.solution is not None and final.solution.bound_violation.max() > BOUND_TOLERANCE:
+    if (final.solution is not None
+            and final.solution.bound_violation.max(initial=0.0) > BOUND_TOLERANCE):
         raise _bounds_error(robot, final.positions_mm, final.tensions_n, bounds,
                             final.solution.bound_violation)
     positions = final.lm.positions(final.tensions_n)

@@ -129,15 +129,16 @@ def _print_tables(result) -> None:
         pose.add_row(*(f"{v:+.5f}" for v in row), f"{t:+.3f}")
     stdout.print(pose)
 
-    cables = Table(title="actuation", title_justify="left")
-    for name in ("cable", "control", "input", "tension (N)", "state"):
-        cables.add_column(name, justify="left" if name in ("cable", "control", "state")
-                          else "right")
-    for i, name in enumerate(result.cable_names):
-        unit = "mm" if result.cable_controls[i] == "displacement" else "N"
-        cables.add_row(name, result.cable_controls[i], f"{result.actuation[i]:.4f} {unit}",
-                       f"{result.tensions_n[i]:.4f}", "slack" if result.slack[i] else "taut")
-    stdout.print(cables)
+    if result.cable_names:  # a passive body has no actuation to show
+        cables = Table(title="actuation", title_justify="left")
+        for name in ("cable", "control", "input", "tension (N)", "state"):
+            cables.add_column(name, justify="left" if name in ("cable", "control", "state")
+                              else "right")
+        for i, name in enumerate(result.cable_names):
+            unit = "mm" if result.cable_controls[i] == "displacement" else "N"
+            cables.add_row(name, result.cable_controls[i], f"{result.actuation[i]:.4f} {unit}",
+                           f"{result.tensions_n[i]:.4f}", "slack" if result.slack[i] else "taut")
+        stdout.print(cables)
 
     table = Table(title="markers", title_justify="left")
     for name in ("marker", "residual (mm)", "left out (mm)", "used", "outlier"):

@@ -168,7 +168,11 @@ def reduce(
     from softforce_cli.cli.common import progress_bar
     from softforce_cli.fem.element import ELEMENTS
     from softforce_cli.fem.reduction.rom_file import save_reduction
-    from softforce_cli.fem.reduction.train import TrainingSettings, train_robot
+    from softforce_cli.fem.reduction.train import (
+        TrainingSettings,
+        check_trainable,
+        train_robot,
+    )
     from softforce_cli.io.atomic import check_can_write, check_writable
     from softforce_cli.model.robot import load_robot, with_element
 
@@ -177,6 +181,7 @@ def reduce(
     check_writable(output, force)
     check_can_write(output)  # before the minutes of training
     robot = with_element(load_robot(robot_file), element)
+    check_trainable(robot)
     if not 0.0 < box_fraction <= 1.0:
         raise ModelError(f"--box-fraction {box_fraction:g} must be in (0, 1]")
     if max_modes < 1:

@@ -212,19 +212,29 @@ def train(model: FEModel, controls: tuple[str, ...], low: np.ndarray, high: np.n
                                info=info)
 
 
-def train_robot(robot, settings: TrainingSettings = TrainingSettings(),
-                progress: Callable[[int, int], None] | None = None,
-                cache: Path | None = None) -> Reduction:
-    """Train a reduction of a Robot's full FE model (model.robot.Robot, its element) over the
-    cables' [min, max] box; ModelError when a cable has no finite max."""
-    specs = robot.cable_specs
-    low = np.array([c.min for c in specs], dtype=float)
-    high = np.array([c.max for c in specs], dtype=float)
-    for spec in specs:
+def check_trainable(robot) -> None:
+    """ModelError unless the robot (model.robot.Robot) has cables, each with a finite
+    [min, max]: the training spans their actuation box."""
+    if not robot.cable_specs:
+        raise ModelError(f"{robot.config.source}: the robot has no [[cable]]; a reduced model "
+                         "is trained over its cables' actuation box, so sense and calibrate "
+                         "it with its full model")
+    for spec in robot.cable_specs:
         if not np.isfinite(spec.max) or not np.isfinite(spec.min):
             raise ModelError(f"{robot.config.source}: cable {spec.name!r} has no finite min/max;"
                              " set both in the robot file: they are the box a reduced model is "
                              "trained over")
+
+
+def train_robot(robot, settings: TrainingSettings = TrainingSettings(),
+                progress: Callable[[int, int], None] | None = None,
+                cache: Path | None = None) -> Reduction:
+    """Train a reduction of a Robot's full FE model (model.robot.Robot, its element) over the
+    cables' [min, max] box; ModelError where check_trainable finds none."""
+    check_trainable(robot)
+    specs = robot.cable_specs
+    low = np.array([c.min for c in specs], dtype=float)
+    high = np.array([c.max for c in specs], dtype=float)
     high = low + settings.box_fraction * (high - low)
     return train(robot.full_fe_model, tuple(c.control for c in specs), low, high,
                  robot.feature_nodes, robot.feature_normals, robot.mesh.surface_nodes,
