@@ -12,6 +12,7 @@ import open3d as o3d
 from softforce_cli.calibration.rigid import RigidTransform, rotation_from_euler_deg
 from softforce_cli.camera.intrinsics import CameraIntrinsics, points_from_depth
 from softforce_cli.vision.filters import (
+    TABLE_MAX_TILT_DEG,
     crop_box,
     crop_box_from_bounds,
     fit_table_plane,
@@ -152,6 +153,53 @@ def test_no_table_in_the_slab_means_nothing_removed():
     plane = fit_table_plane(cloud, -37.5, np.array([0, 0, 40.0]), 30.0, 4.0, 200)
     assert plane is None
     assert len(remove_table(cloud, plane, 8.0)) == 500
+
+
+def _hanging_skin(rng: np.random.Generator, count: int = 3000) -> np.ndarray:
+    """(count, 3) points on the side of a vertical cylinder (radius 10 mm, z 0-60 mm), the
+    half a camera sees: the lower end of a robot that hangs in the air."""
+    angle = rng.uniform(-np.pi, 0.0, count)
+    z = rng.uniform(0.0, 60.0, count)
+    return np.column_stack([10 * np.cos(angle), 10 * np.sin(angle), z]) + rng.normal(
+        0.0, 0.5, (count, 3))
+
+
+def test_a_band_of_a_hanging_robot_is_no_table():
+    """A robot whose lowest part hangs in the air has only its own skin in the slab: the
+    plane through most of it is a band of the skin (vertical through its side, or a
+    horizontal ring), which is no table: none is found, where one had been taken and cut
+    the robot away (a trunk's frames were all `nodepth`)."""
+    rng = np.random.default_rng(7)
+    skin = _hanging_skin(rng)
+    cloud = PointCloud(skin, np.zeros((len(skin), 3), dtype=np.uint8))
+    footprint = np.array([[-15.0, -15.0], [15.0, 15.0]])
+    assert fit_table_plane(cloud, 0.0, np.array([0, 0, 75.0]), 30.0, 4.0, 200,
+                           footprint_mm=footprint) is None
+    # without the footprint a ring of the skin passes for a horizontal table
+    assert fit_table_plane(cloud, 0.0, np.array([0, 0, 75.0]), 30.0, 4.0, 200) is not None
+    # a table 30 mm below the tip, around it, is found through the skin beside it
+    xy = rng.uniform(-55, 55, (4000, 2))
+    table = np.column_stack([xy, np.full(len(xy), -30.0) + rng.normal(0.0, 1.0, len(xy))])
+    both = PointCloud(np.vstack([table, skin]), np.zeros((len(table) + len(skin), 3),
+                                                          dtype=np.uint8))
+    plane = fit_table_plane(both, -30.0, np.array([0, 0, 75.0]), 60.0, 4.0, 200,
+                            footprint_mm=footprint)
+    assert plane is not None and plane[0][2] > 0.999 and abs(plane[1] - 30.0) < 0.3
+
+
+def test_a_wall_beside_the_robot_is_no_table():
+    """The best plane of the slab tilted more than TABLE_MAX_TILT_DEG (a wall behind the
+    robot with more points than the table in view) is passed over for the table."""
+    rng = np.random.default_rng(8)
+    xy = rng.uniform(-60, 60, (1500, 2))
+    table = np.column_stack([xy, np.full(len(xy), -37.5) + rng.normal(0.0, 1.0, len(xy))])
+    yz = rng.uniform([-60, -37.5], [60, -10], (3000, 2))
+    wall = np.column_stack([yz[:, 0], np.full(len(yz), 55.0), yz[:, 1]])
+    cloud = PointCloud(np.vstack([table, wall]), np.zeros((4500, 3), dtype=np.uint8))
+    plane = fit_table_plane(cloud, -37.5, np.array([0, 0, 40.0]), 30.0, 4.0, 200,
+                            footprint_mm=np.array([[-20.0, -20.0], [20.0, 20.0]]))
+    assert plane is not None and plane[0][2] > 0.999
+    assert np.degrees(np.arccos(min(1.0, plane[0][2]))) < TABLE_MAX_TILT_DEG
 
 
 def test_outlier_pairs_keep_the_same_points_as_open3d_on_a_surface_with_edges():

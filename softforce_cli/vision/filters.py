@@ -15,6 +15,12 @@ from softforce_cli.vision.point_cloud import PointCloud, inside_box
 
 RANSAC_TRIALS = 64  # P(no all-table triplet) = (1 - 0.5^3)^64 < 2e-4 with half the slab table
 RANSAC_SAMPLE = 2000  # slab points scored per trial: enough to tell planes apart at 4 mm
+# A table is horizontal in the robot frame (z up) within this, and this share of its points
+# lies beyond the robot's footprint (x, y bounds): the crop box reaches 40 mm past the
+# footprint, and the Diamond's table shows there all around its base. A band of a hanging
+# robot's own skin, or a wall beside it, is neither.
+TABLE_MAX_TILT_DEG = 30.0
+TABLE_BEYOND_FRACTION = 0.1
 
 
 def crop_box_from_bounds(bounds_mm: np.ndarray, margin_mm: float) -> np.ndarray:
@@ -97,18 +103,20 @@ def remove_radius_outliers_with_pairs(
 
 
 def fit_plane_ransac(
-    points_mm: np.ndarray, inlier_mm: float, rng: np.random.Generator
+    points_mm: np.ndarray, inlier_mm: float, rng: np.random.Generator,
+    max_tilt_deg: float = 90.0,
 ) -> tuple[np.ndarray, float] | None:
     """The plane through most of the points (m, 3): (unit normal (3,), offset) with
     n . p + offset = 0, least-squares refitted to the inliers of the best of RANSAC_TRIALS
-    random triplets; None for fewer than 3 points or only degenerate triplets."""
+    random triplets whose plane is tilted at most max_tilt_deg from horizontal (normal
+    within that of z); None for fewer than 3 points or no such triplet."""
     if len(points_mm) < 3:
         return None
     sample = points_mm[rng.integers(0, len(points_mm), min(RANSAC_SAMPLE, len(points_mm)))]
     triplets = sample[rng.integers(0, len(sample), (RANSAC_TRIALS, 3))]
     normals = np.cross(triplets[:, 1] - triplets[:, 0], triplets[:, 2] - triplets[:, 0])
     length = np.linalg.norm(normals, axis=1)
-    good = length > 1e-9
+    good = (length > 1e-9) & (np.abs(normals[:, 2]) >= np.cos(np.radians(max_tilt_deg)) * length)
     if not good.any():
         return None
     normals = normals[good] / length[good, None]
@@ -132,20 +140,33 @@ def fit_table_plane(
     inlier_mm: float,
     min_points: int,
     rng: np.random.Generator | None = None,
+    footprint_mm: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float] | None:
     """The table under the robot as a plane (unit normal (3,), offset), normal towards above_mm.
 
     floor_z_mm : the model's lowest point (robot frame z up), where it stands on the table.
     above_mm   : (3,) a point above the table (the model's centre), orients the normal.
-    Fitted to the points below floor_z_mm + slab_mm; None when fewer than min_points are there.
+    footprint_mm : (2, 2) [min, max] of the model's x and y: a table reaches beyond it.
+    Fitted to the points below floor_z_mm + slab_mm; None when fewer than min_points are there,
+    or when the best plane is no table: tilted more than TABLE_MAX_TILT_DEG, or with fewer
+    than TABLE_BEYOND_FRACTION of its points outside the footprint. A robot whose lowest part
+    hangs in the air (a trunk) has only its own skin in the slab, and RANSAC's best plane
+    there is a band of it: taken for a table, it cut the robot away (no frame was sensed).
     """
     slab = cloud.points_mm[cloud.points_mm[:, 2] < floor_z_mm + slab_mm]
     if len(slab) < min_points:
         return None
-    plane = fit_plane_ransac(slab, inlier_mm, np.random.default_rng(0) if rng is None else rng)
+    plane = fit_plane_ransac(slab, inlier_mm, np.random.default_rng(0) if rng is None else rng,
+                             TABLE_MAX_TILT_DEG)
     if plane is None:
         return None
     normal, offset = plane
+    if footprint_mm is not None:
+        on_plane = slab[np.abs(slab @ normal + offset) < inlier_mm, :2]
+        footprint = np.asarray(footprint_mm, dtype=float).reshape(2, 2)
+        beyond = np.any((on_plane < footprint[0]) | (on_plane > footprint[1]), axis=1)
+        if beyond.mean() < TABLE_BEYOND_FRACTION:
+            return None
     if normal @ np.asarray(above_mm, dtype=float) + offset < 0:
         normal, offset = -normal, -offset
     return normal, offset

@@ -151,7 +151,8 @@ def observe_frame(
                                   stride=TABLE_STRIDE)
         plane = fit_table_plane(sample, bounds[0, 2], bounds.mean(axis=0),
                                 settings.table_slab_mm, settings.table_fit_mm,
-                                settings.table_min_points // TABLE_STRIDE**2)
+                                settings.table_min_points // TABLE_STRIDE**2,
+                                footprint_mm=bounds[:, :2])
     clock.lap("table")
     above = None if plane is None else (plane[0], plane[1], settings.table_clearance_mm)
     cloud = cloud_from_frame(depth_mm, color, intrinsics, robot_from_camera, box,
