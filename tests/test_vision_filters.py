@@ -165,18 +165,20 @@ def _hanging_skin(rng: np.random.Generator, count: int = 3000) -> np.ndarray:
 
 
 def test_a_band_of_a_hanging_robot_is_no_table():
-    """A robot whose lowest part hangs in the air has only its own skin in the slab: the
-    plane through most of it is a band of the skin (vertical through its side, or a
-    horizontal ring), which is no table: none is found, where one had been taken and cut
-    the robot away (a trunk's frames were all `nodepth`)."""
+    """A robot whose lowest part hangs in the air has only its own skin, and what touches
+    it, in the slab: the plane through most of it is a band of the skin, or the skin and a
+    probe's rod, which is no table: none is found, where one had been taken and cut the
+    robot away (a trunk's frames were all `nodepth`) or the rod (no contact found)."""
     rng = np.random.default_rng(7)
     skin = _hanging_skin(rng)
-    cloud = PointCloud(skin, np.zeros((len(skin), 3), dtype=np.uint8))
     footprint = np.array([[-15.0, -15.0], [15.0, 15.0]])
-    assert fit_table_plane(cloud, 0.0, np.array([0, 0, 75.0]), 30.0, 4.0, 200,
-                           footprint_mm=footprint) is None
-    # without the footprint a ring of the skin passes for a horizontal table
-    assert fit_table_plane(cloud, 0.0, np.array([0, 0, 75.0]), 30.0, 4.0, 200) is not None
+    x = rng.uniform(10.0, 50.0, 1500)  # a rod along +x touching the skin 20 mm up
+    angle = rng.uniform(0.0, 2 * np.pi, len(x))
+    rod = np.column_stack([x, 5 * np.cos(angle), 20 + 5 * np.sin(angle)])
+    for points in (skin, np.vstack([skin, rod])):
+        cloud = PointCloud(points, np.zeros((len(points), 3), dtype=np.uint8))
+        assert fit_table_plane(cloud, 0.0, np.array([0, 0, 75.0]), 30.0, 4.0, 200,
+                               footprint_mm=footprint) is None
     # a table 30 mm below the tip, around it, is found through the skin beside it
     xy = rng.uniform(-55, 55, (4000, 2))
     table = np.column_stack([xy, np.full(len(xy), -30.0) + rng.normal(0.0, 1.0, len(xy))])

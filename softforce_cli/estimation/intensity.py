@@ -24,7 +24,7 @@ the one the FE statics uses (fem.statics): release the cables that would push, h
 those that would be stretched beyond their input, until neither happens. On a robot whose
 cables all stay taut (the Diamond under gravity) this is eq. 14 itself; on a finger with
 antagonistic cables, the slack ones pushed with up to 3.2 N and its probes read 85% off
-(median) instead of 17% (docs/sensing_studies.md, "Another robot: a finger").
+(median) instead of 17% (docs/sensing_studies.md, "Other robots").
 """
 
 from __future__ import annotations

@@ -609,7 +609,7 @@ def contact_nodes(centres_mm: np.ndarray, camera_mm: np.ndarray, positions_mm: n
     of sight through the touch meets it first before the push has bent the model), where
     its force, along that face's normal, could not dent the top: 0.2 N read 0-0.1 N on two
     frames, three with the camera calibrated from markers (docs/sensing_studies.md,
-    "Another robot: a finger")."""
+    "Other robots")."""
     surface = positions_mm[surface_nodes]
     tree = cKDTree(surface)
     nearest_mm, _ = tree.query(centres_mm)

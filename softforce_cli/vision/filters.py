@@ -148,10 +148,12 @@ def fit_table_plane(
     above_mm   : (3,) a point above the table (the model's centre), orients the normal.
     footprint_mm : (2, 2) [min, max] of the model's x and y: a table reaches beyond it.
     Fitted to the points below floor_z_mm + slab_mm; None when fewer than min_points are there,
-    or when the best plane is no table: tilted more than TABLE_MAX_TILT_DEG, or with fewer
+    or when the best plane is no table: tilted more than TABLE_MAX_TILT_DEG, higher than
+    inlier_mm above floor_z_mm under above_mm (the robot cannot stand in it), or with fewer
     than TABLE_BEYOND_FRACTION of its points outside the footprint. A robot whose lowest part
-    hangs in the air (a trunk) has only its own skin in the slab, and RANSAC's best plane
-    there is a band of it: taken for a table, it cut the robot away (no frame was sensed).
+    hangs in the air (a trunk) has only its own skin and what touches it in the slab, and
+    RANSAC's best plane there is a band of the skin, or the skin and a probe's rod: taken for
+    a table, it cut the robot (no frame was sensed) or the rod (no contact) away.
     """
     slab = cloud.points_mm[cloud.points_mm[:, 2] < floor_z_mm + slab_mm]
     if len(slab) < min_points:
@@ -161,13 +163,19 @@ def fit_table_plane(
     if plane is None:
         return None
     normal, offset = plane
+    above = np.asarray(above_mm, dtype=float)
+    if abs(normal[2]) < np.cos(np.radians(TABLE_MAX_TILT_DEG)):  # the refit tilted it
+        return None
+    height_mm = -(offset + normal[:2] @ above[:2]) / normal[2]
+    if height_mm > floor_z_mm + inlier_mm:
+        return None
     if footprint_mm is not None:
         on_plane = slab[np.abs(slab @ normal + offset) < inlier_mm, :2]
         footprint = np.asarray(footprint_mm, dtype=float).reshape(2, 2)
         beyond = np.any((on_plane < footprint[0]) | (on_plane > footprint[1]), axis=1)
         if beyond.mean() < TABLE_BEYOND_FRACTION:
             return None
-    if normal @ np.asarray(above_mm, dtype=float) + offset < 0:
+    if normal @ above + offset < 0:
         normal, offset = -normal, -offset
     return normal, offset
 
