@@ -168,7 +168,7 @@ def test_a_band_of_a_hanging_robot_is_no_table():
     """A robot whose lowest part hangs in the air has only its own skin, and what touches
     it, in the slab: the plane through most of it is a band of the skin, or the skin and a
     probe's rod, which is no table: none is found, where one had been taken and cut the
-    robot away (a trunk's frames were all `nodepth`) or the rod (no contact found)."""
+    robot away (a trunk's frames were all `norobot`) or the rod (no contact found)."""
     rng = np.random.default_rng(7)
     skin = _hanging_skin(rng)
     footprint = np.array([[-15.0, -15.0], [15.0, 15.0]])
