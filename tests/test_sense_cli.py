@@ -173,6 +173,35 @@ def test_a_robot_without_cables_is_sensed(tmp_path, names):
     assert all(frame["cable_tensions_n"] == [] for frame in frames)
 
 
+def test_cables_listed_in_another_order_are_read_by_name(probes_run, tmp_path):
+    """A recording from another tool may list the cables in another order than the robot
+    file (DESIGN fixes the names, not their order): its /robot/actuation is read by name
+    and senses exactly as the recording in the robot's order (it was refused before)."""
+    _, out, calibration = probes_run
+
+    def reversed_actuation(frame):
+        a = frame.actuation
+        return dataclasses.replace(frame, actuation=Actuation(a.names[::-1], a.control,
+                                                              a.values[::-1].copy()))
+
+    recording = tmp_path / "reversed.mcap"
+    write_recording((reversed_actuation(f) for f in iter_frames(PROBES)), recording)
+    assert next(iter_frames(recording)).actuation.names[0] == "east"
+    result = softforce("sense", recording, "--robot", SAMPLE_ROBOT, "--calibration",
+                       calibration, "-o", tmp_path / "out")
+    assert result.returncode == 0, result.stderr
+    assert ((tmp_path / "out" / "contacts.csv").read_text()
+            == (out / "contacts.csv").read_text())
+
+
+def test_actuation_values_are_put_in_the_robots_order():
+    actuation = Actuation(("b", "c", "a"), "displacement", np.array([2.0, 3.0, 1.0]))
+    np.testing.assert_array_equal(actuation.values_in(("a", "b", "c")), [1.0, 2.0, 3.0])
+    for names in (("a", "b"), ("a", "b", "d"), ("a", "a", "b")):
+        with pytest.raises(ValueError):
+            actuation.values_in(names)
+
+
 def test_missing_recording_and_settings_fail_with_one_line(probes_run, tmp_path):
     _, _, calibration = probes_run
     missing = softforce("sense", tmp_path / "none.mcap", "--robot", SAMPLE_ROBOT,

@@ -209,8 +209,8 @@ def _sensed(robot: Robot, robot_from_camera: RigidTransform, loaded: list[RgbdFr
         settings.estimation, updates_per_frame=max(settings.estimation.updates_per_frame,
                                                    STATIC_UPDATES)))
     first = (reference or loaded)[0]
-    actuation = first.actuation.values if first.actuation is not None else np.zeros(
-        len(robot.cable_specs))
+    actuation = (first.actuation.values_in([c.name for c in robot.cable_specs])
+                 if first.actuation is not None else np.zeros(len(robot.cable_specs)))
     sensor = ForceSensor(robot, robot_from_camera, actuation, settings,
                          KnownContact(load.point_mm, direction), tare_frames=len(reference))
     for index, frame in enumerate(reference):

@@ -26,7 +26,8 @@ def static_frames(recording: Path, frames: str | None, robot: Robot) -> list[Rgb
     why = actuation_mismatch(chosen[0].actuation, robot.cable_specs)
     if why is not None:
         raise CalibrationError(f"{recording}: {why}")
-    actuations = [f.actuation.values for f in chosen if f.actuation is not None]
+    names = [cable.name for cable in robot.cable_specs]
+    actuations = [f.actuation.values_in(names) for f in chosen if f.actuation is not None]
     if any(not np.allclose(a, actuations[0]) for a in actuations):
         raise CalibrationError(f"{recording}: the actuation changes within the selected frames "
                                f"{frames or ''}; select the frames of one static state")

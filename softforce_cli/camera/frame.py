@@ -18,7 +18,8 @@ if TYPE_CHECKING:
 class Actuation:
     """Actuator inputs of one frame (docs/recordings.md, topic /robot/actuation).
 
-    names   : cable names, in the robot file's order.
+    names   : cable names (softforce writes them in the robot file's order; another tool
+              may not: values_in puts them in a robot's order).
     control : "displacement" (values in mm) or "force" (values in N).
     values  : (a,) float64.
     """
@@ -27,12 +28,21 @@ class Actuation:
     control: str
     values: np.ndarray
 
+    def values_in(self, names: Sequence[str]) -> np.ndarray:
+        """(a,) float64 the values in the order of `names` (a robot's cables); ValueError
+        when they are not the same names (actuation_mismatch says why, in a line)."""
+        if tuple(names) == tuple(self.names):
+            return np.asarray(self.values, dtype=float)
+        position = {name: i for i, name in enumerate(self.names)}
+        if len(position) != len(self.names) or sorted(position) != sorted(names):
+            raise ValueError(f"actuation names {list(self.names)} are not {list(names)}")
+        return np.asarray(self.values, dtype=float)[[position[name] for name in names]]
+
 
 def actuation_mismatch(actuation: Actuation | None,
                        cables: Sequence[CableSpec]) -> str | None:
     """Why a frame's actuation (None: the recording has none) does not drive a robot's
-    cables (their names in the robot file's order, their control modes), or None when it
-    does."""
+    cables (their names, in any order, and their control modes), or None when it does."""
     names = tuple(cable.name for cable in cables)
     controls = {cable.control for cable in cables}
     if actuation is None:
@@ -41,9 +51,10 @@ def actuation_mismatch(actuation: Actuation | None,
         return (f"no /robot/actuation message in the first frame, but the robot's cables "
                 f"({', '.join(names)}) need their inputs; record them with "
                 "`softforce record --actuation ACT.csv`")
-    if tuple(actuation.names) != tuple(names):
+    if (sorted(actuation.names) != sorted(names)
+            or len(set(actuation.names)) != len(actuation.names)):
         return (f"the actuation names {list(actuation.names)} are not the robot's cables "
-                f"{list(names)} (same order)")
+                f"{list(names)}")
     if names and controls != {actuation.control}:  # a robot without cables takes any
         return (f"the actuation is {actuation.control}-controlled but the robot file's cables "
                 f"are {', '.join(sorted(controls))}-controlled")

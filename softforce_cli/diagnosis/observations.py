@@ -151,7 +151,7 @@ def observe_recordings(
             depth = (camera_from_robot.apply(points))[:, 2]
             frames.append(FrameObservation(
                 index=index, recording=number, time_s=offset_s + last_s,
-                actuation=np.asarray(frame.actuation.values, dtype=float),
+                actuation=frame.actuation.values_in([c.name for c in robot.cable_specs]),
                 points_mm=points, depth_mm=depth,
                 markers_mm=_markers(frame, robot, robot_from_camera), table_plane=table))
         offset_s += last_s + 1.0

@@ -133,6 +133,7 @@ class ForceSensor:
         self.robot_rgb = None if robot_rgb is None else np.asarray(robot_rgb, dtype=float)
         self.features = Attachment.at_nodes(robot.feature_nodes)
         self.controls = tuple(spec.control for spec in robot.cable_specs)
+        self.cable_names = tuple(spec.name for spec in robot.cable_specs)
         self.actuation = np.asarray(start_actuation, dtype=float)
         self.linear: LinearizedModel | None = None
         # the mesh's nodes: all the sensor looks at (surface, features, contacts); a reduced
@@ -226,7 +227,10 @@ class ForceSensor:
         timings: dict[str, float] = {}
         time_s = frame.time_ns * 1e-9
         if frame.actuation is not None:
-            self.actuation = np.asarray(frame.actuation.values, dtype=float)
+            why = actuation_mismatch(frame.actuation, self.robot.cable_specs)
+            if why is not None:
+                raise SensingError(f"frame {index}: {why}")
+            self.actuation = frame.actuation.values_in(self.cable_names)
         if self.robot_rgb is None:
             self.robot_rgb = learned_robot_colour(frame, self.transform, self.mesh_geometry()[0],
                                                   self.robot.mesh.surface_nodes,

@@ -118,7 +118,8 @@ def prepare_sensing(inputs: SenseInputs, live: bool = False) -> PreparedSensing:
         raise
     # the FE model starts from the recording's own first inputs; the calibration's describe
     # the robot when it was calibrated (and a pose-only calibration has none)
-    start = (first[1].actuation.values if first[1].actuation is not None
+    start = (first[1].actuation.values_in([c.name for c in robot.cable_specs])
+             if first[1].actuation is not None
              else calibration.actuation)
     if inputs.tare_frames is not None and inputs.tare_frames < 0:
         raise SensingError("--tare must be a number of frames >= 0")

@@ -66,7 +66,9 @@ def build_report(folder: RunFolder, out_dir: Path, sources: ReportSources = Repo
         step("rebuilding the robot's shape")
         robot = sense_robot(run, sources)
         recording = recording_path(run, sources)
-        scene = _scene(run, robot, lambda frame: recorded_actuation(recording, frame), notes)
+        cables = robot.cable_specs if robot is not None else ()
+        scene = _scene(run, robot, lambda frame: recorded_actuation(recording, frame, cables),
+                       notes)
         sections += _sense_sections(run, overview, truth, notes)
         step("drawing the figures")
         sections += _figure_sections(sense_charts(run, truth), scene, out_dir, pngs, force)

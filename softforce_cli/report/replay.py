@@ -79,7 +79,8 @@ def write_replay(run: SenseRun, inputs: ReplayInputs, path: Path, force: bool = 
                 nodes = shape.positions_mm[: robot.mesh.node_count]
                 colour = learned_robot_colour(frame, transform, nodes,
                                               robot.mesh.surface_nodes, settings.vision)
-            actuation = None if frame.actuation is None else frame.actuation.values
+            actuation = (None if frame.actuation is None
+                         else frame.actuation.values_in([c.name for c in robot.cable_specs]))
             shape, warm = _frame_shape(run, robot, index, actuation, shape, warm)
             vision = _vision(frame, transform, robot, shape, colour, settings, table)
             table = vision.table_plane

@@ -3,12 +3,15 @@ sense run names in sense.json (found again from where it was run)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from softforce_cli.camera.frame import actuation_mismatch
 from softforce_cli.io.mcap_reader import iter_frames
+from softforce_cli.model.config import CableSpec
 from softforce_cli.report.loading import ReportError, SenseRun
 from softforce_cli.report.paths import resolve_input, truth_path
 from softforce_cli.report.truth import TruthReport, compare_run_with_truth
@@ -44,15 +47,20 @@ def recording_path(run: SenseRun, sources: ReportSources) -> Path | None:
     return resolve_input(run.input_path("recording"), run.folder)
 
 
-def recorded_actuation(recording: Path | None, index: int) -> np.ndarray | None:
+def recorded_actuation(recording: Path | None, index: int,
+                       cables: Sequence[CableSpec]) -> np.ndarray | None:
     """(a,) the /robot/actuation values of frame `index` of the recording (the last one sent
-    before it, as sense holds them); None without a recording or an actuation."""
+    before it, as sense holds them), in the order of the robot's `cables`; None without a
+    recording or an actuation; ReportError when they are another robot's."""
     if recording is None:
         return None
     values = None
     for number, frame in enumerate(iter_frames(recording)):
         if frame.actuation is not None:
-            values = np.asarray(frame.actuation.values, dtype=float)
+            why = actuation_mismatch(frame.actuation, cables)
+            if why is not None:
+                raise ReportError(f"{recording}, frame {number}: {why}")
+            values = frame.actuation.values_in([cable.name for cable in cables])
         if number == index:
             break
     return values
