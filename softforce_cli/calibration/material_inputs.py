@@ -23,9 +23,12 @@ def static_frames(recording: Path, frames: str | None, robot: Robot) -> list[Rgb
     chosen = [frame for _, frame, _ in selection.select(iter_frames(recording))]
     if not chosen:
         raise CalibrationError(f"{recording}: no frame in {frames or 'the recording'}")
-    why = actuation_mismatch(chosen[0].actuation, robot.cable_specs)
-    if why is not None:
-        raise CalibrationError(f"{recording}: {why}")
+    for k, frame in enumerate(chosen):
+        if k and frame.actuation is None:
+            continue  # a frame without its own message holds the last one
+        why = actuation_mismatch(frame.actuation, robot.cable_specs)
+        if why is not None:
+            raise CalibrationError(f"{recording}: {why}")
     names = [cable.name for cable in robot.cable_specs]
     actuations = [f.actuation.values_in(names) for f in chosen if f.actuation is not None]
     if any(not np.allclose(a, actuations[0]) for a in actuations):
