@@ -189,6 +189,17 @@ def test_a_band_of_a_hanging_robot_is_no_table():
     assert plane is not None and plane[0][2] > 0.999 and abs(plane[1] - 30.0) < 0.3
 
 
+def test_a_table_seen_above_the_robots_lowest_point_is_still_the_table():
+    """A camera whose depth scale is 2% short sees the table 12 mm higher than the robot's
+    lowest point (the model's, in the calibrated frame); it is still the table, which
+    diagnose reads the camera's error from (diagnosis.background)."""
+    rng = np.random.default_rng(9)
+    cloud, _ = _table_scene(rng, tilt_deg=0.0)
+    plane = fit_table_plane(cloud, -37.5 - 12.0, np.array([0, 0, 40.0]), 30.0, 4.0, 200,
+                            footprint_mm=np.array([[-15.0, -15.0], [15.0, 15.0]]))
+    assert plane is not None and abs(plane[1] - 37.5) < 0.3
+
+
 def test_a_wall_beside_the_robot_is_no_table():
     """The best plane of the slab tilted more than TABLE_MAX_TILT_DEG (a wall behind the
     robot with more points than the table in view) is passed over for the table."""

@@ -21,6 +21,10 @@ RANSAC_SAMPLE = 2000  # slab points scored per trial: enough to tell planes apar
 # robot's own skin, or a wall beside it, is neither.
 TABLE_MAX_TILT_DEG = 30.0
 TABLE_BEYOND_FRACTION = 0.1
+# ... and those points spread at least this (standard deviation across their narrowest
+# direction, mm): a 40 mm strip of table on one side of the robot has 11.5 mm, a 10 mm rod
+# lying in the plane about 3.5 mm.
+TABLE_MIN_WIDTH_MM = 8.0
 
 
 def crop_box_from_bounds(bounds_mm: np.ndarray, margin_mm: float) -> np.ndarray:
@@ -148,12 +152,14 @@ def fit_table_plane(
     above_mm   : (3,) a point above the table (the model's centre), orients the normal.
     footprint_mm : (2, 2) [min, max] of the model's x and y: a table reaches beyond it.
     Fitted to the points below floor_z_mm + slab_mm; None when fewer than min_points are there,
-    or when the best plane is no table: tilted more than TABLE_MAX_TILT_DEG, higher than
-    inlier_mm above floor_z_mm under above_mm (the robot cannot stand in it), or with fewer
-    than TABLE_BEYOND_FRACTION of its points outside the footprint. A robot whose lowest part
-    hangs in the air (a trunk) has only its own skin and what touches it in the slab, and
-    RANSAC's best plane there is a band of the skin, or the skin and a probe's rod: taken for
-    a table, it cut the robot (no frame was sensed) or the rod (no contact) away.
+    or when the best plane is no table: tilted more than TABLE_MAX_TILT_DEG, or with fewer
+    than TABLE_BEYOND_FRACTION of its points outside the footprint, or those spread less
+    than TABLE_MIN_WIDTH_MM across (a line). A robot whose lowest part hangs in the air (a
+    trunk) has only its own skin and what touches it in the slab, and RANSAC's best plane
+    there is a band of the skin, or the skin and a probe's rod: taken for a table, it cut
+    the robot (no frame was sensed) or the rod (no contact) away. The plane's height is not
+    held to the robot's lowest point: a camera's depth scale 2% short sees the table 12 mm
+    high, and diagnose reads that from it (diagnosis.background).
     """
     slab = cloud.points_mm[cloud.points_mm[:, 2] < floor_z_mm + slab_mm]
     if len(slab) < min_points:
@@ -163,18 +169,17 @@ def fit_table_plane(
     if plane is None:
         return None
     normal, offset = plane
-    above = np.asarray(above_mm, dtype=float)
     if abs(normal[2]) < np.cos(np.radians(TABLE_MAX_TILT_DEG)):  # the refit tilted it
-        return None
-    height_mm = -(offset + normal[:2] @ above[:2]) / normal[2]
-    if height_mm > floor_z_mm + inlier_mm:
         return None
     if footprint_mm is not None:
         on_plane = slab[np.abs(slab @ normal + offset) < inlier_mm, :2]
         footprint = np.asarray(footprint_mm, dtype=float).reshape(2, 2)
-        beyond = np.any((on_plane < footprint[0]) | (on_plane > footprint[1]), axis=1)
-        if beyond.mean() < TABLE_BEYOND_FRACTION:
+        beyond = on_plane[np.any((on_plane < footprint[0]) | (on_plane > footprint[1]), axis=1)]
+        if len(beyond) < max(TABLE_BEYOND_FRACTION * len(on_plane), 3):
             return None
+        if np.sqrt(max(np.linalg.eigvalsh(np.cov(beyond.T))[0], 0.0)) < TABLE_MIN_WIDTH_MM:
+            return None  # a line of points (a probe's rod), not a surface
+    above = np.asarray(above_mm, dtype=float)
     if normal @ above + offset < 0:
         normal, offset = -normal, -offset
     return normal, offset
