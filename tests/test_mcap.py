@@ -328,8 +328,10 @@ def write_custom(
     depth_size=None,
     color_schema=RawImage,
     color_encoding="rgb8",
+    depth_encoding="16UC1",
 ) -> None:
-    """A recording written with the bare mcap writer: extra topics, missing or odd ones."""
+    """A recording written with the bare mcap writer: extra topics, missing or odd ones,
+    colour and depth in other encodings (an unknown one relabels the rgb8 bytes)."""
     with open(path, "wb") as stream:
         writer = McapWriter(stream)
         writer.start()
@@ -353,12 +355,24 @@ def write_custom(
             if color_encoding != "rgb8":
                 message = RawImage.FromString(color)
                 message.encoding = color_encoding
+                if color_encoding in fmt.COLOR_LAYOUTS:
+                    channels, rgb = fmt.COLOR_LAYOUTS[color_encoding]
+                    pixels = np.full((*frame.color.shape[:2], channels), 255, np.uint8)
+                    pixels[:, :, rgb] = frame.color
+                    message.data, message.step = pixels.tobytes(), channels * pixels.shape[1]
                 color = message.SerializeToString()
+            depth_data = fmt.encode_depth(depth, t)
+            if depth_encoding == "32FC1":  # metres; no depth as NaN, as ROS drivers write it
+                metres = np.where(depth > 0, depth / 1000.0, np.nan).astype("<f4")
+                message = RawImage.FromString(depth_data)
+                message.encoding, message.data = "32FC1", metres.tobytes()
+                message.step = 4 * depth.shape[1]
+                depth_data = message.SerializeToString()
             if color_schema is CompressedImage:
                 color = CompressedImage(format="jpeg", data=b"\xff\xd8").SerializeToString()
             data = {
                 fmt.COLOR_TOPIC: color,
-                fmt.DEPTH_TOPIC: fmt.encode_depth(depth, t),
+                fmt.DEPTH_TOPIC: depth_data,
                 fmt.CAMERA_INFO_TOPIC: fmt.encode_camera_info(frame.intrinsics, t),
                 fmt.ACTUATION_TOPIC: fmt.encode_actuation(frame.actuation),
                 fmt.MARKERS_TOPIC: fmt.encode_markers(frame.markers),
@@ -384,6 +398,20 @@ def test_extra_topics_are_ignored(tmp_path):
     assert {t.topic: t.message_count for t in summary.topics}["/tf"] == 8
 
 
+@pytest.mark.parametrize(("color_encoding", "depth_encoding"),
+                         [("bgr8", "16UC1"), ("rgba8", "16UC1"), ("bgra8", "32FC1"),
+                          ("rgb8", "32FC1")])
+def test_other_tools_encodings_read_as_the_same_frames(tmp_path, color_encoding,
+                                                      depth_encoding):
+    """Colour as bgr8, rgba8 or bgra8 and depth as 32FC1 in metres (what ROS drivers and
+    OpenCV write; ROS REP 118) read as the rgb8 and 16UC1 millimetres softforce writes."""
+    frames = make_frames(3)
+    path = tmp_path / "other.mcap"
+    write_custom(path, frames, color_encoding=color_encoding, depth_encoding=depth_encoding)
+    for got, want in zip(iter_frames(path), frames, strict=True):
+        assert_same_frame(got, want)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
@@ -392,7 +420,7 @@ def test_extra_topics_are_ignored(tmp_path):
         ({"topics": (fmt.DEPTH_TOPIC, fmt.CAMERA_INFO_TOPIC)}, "has no /camera/color/image_raw"),
         ({"depth_size": (24, 32)}, "depth is 32x24 but colour is 64x48"),
         ({"color_schema": CompressedImage}, "holds foxglove.CompressedImage"),
-        ({"color_encoding": "bgr8"}, "encoding 'bgr8'; softforce reads 'rgb8'"),
+        ({"color_encoding": "yuv422"}, "encoding 'yuv422'; softforce reads rgb8, bgr8"),
     ],
 )
 def test_bad_recordings_are_rejected(tmp_path, kwargs, message):

@@ -41,6 +41,12 @@ CONTROL_MODES = ("displacement", "force")
 
 COLOR_ENCODING = "rgb8"
 DEPTH_ENCODINGS = ("16UC1", "mono16")  # mono16 is Foxglove's alias of the same layout
+# What other tools write, read too (softforce writes rgb8 and 16UC1): the channels' order
+# (the bytes per pixel, and which of them are R, G, B), and depth in metres as 32-bit floats
+# (ROS REP 118), rounded to the millimetre
+COLOR_LAYOUTS = {"rgb8": (3, [0, 1, 2]), "bgr8": (3, [2, 1, 0]),
+                 "rgba8": (4, [0, 1, 2]), "bgra8": (4, [2, 1, 0])}
+DEPTH_METRES_ENCODING = "32FC1"
 
 ACTUATION_SCHEMA_NAME = "softforce.Actuation"
 ACTUATION_JSON_SCHEMA = {
@@ -159,25 +165,35 @@ def _image_rows(image: RawImage, bytes_per_pixel: int, what: str) -> np.ndarray:
 
 
 def decode_color(data: bytes, what: str = "colour image") -> np.ndarray:
-    """Serialized foxglove.RawImage rgb8 -> (h, w, 3) uint8 RGB (a writable copy)."""
+    """Serialized foxglove.RawImage rgb8 (or bgr8, rgba8, bgra8) -> (h, w, 3) uint8 RGB (a
+    writable copy)."""
     image = _parse_raw_image(data, what)
-    if image.encoding != COLOR_ENCODING:
+    if image.encoding not in COLOR_LAYOUTS:
         raise RecordingError(
-            f"{what} has encoding '{image.encoding}'; softforce reads '{COLOR_ENCODING}'"
+            f"{what} has encoding '{image.encoding}'; softforce reads "
+            f"{', '.join(COLOR_LAYOUTS)}"
         )
-    rows = _image_rows(image, 3, what)
-    return rows.reshape(image.height, image.width, 3).copy()
+    channels, rgb = COLOR_LAYOUTS[image.encoding]
+    rows = _image_rows(image, channels, what)
+    return rows.reshape(image.height, image.width, channels)[:, :, rgb].copy()
 
 
 def decode_depth(data: bytes, what: str = "depth image") -> np.ndarray:
-    """Serialized foxglove.RawImage 16UC1 -> (h, w) uint16 depth in mm (a writable copy)."""
+    """Serialized foxglove.RawImage 16UC1 (mm; or 32FC1, metres) -> (h, w) uint16 depth in
+    mm (a writable copy; 0 where there is none: a float depth not finite or not positive)."""
     image = _parse_raw_image(data, what)
-    if image.encoding not in DEPTH_ENCODINGS:
-        raise RecordingError(
-            f"{what} has encoding '{image.encoding}'; softforce reads '16UC1' depth in mm"
-        )
-    rows = _image_rows(image, 2, what)
-    return np.ascontiguousarray(rows).view("<u2").astype(np.uint16)
+    if image.encoding in DEPTH_ENCODINGS:
+        rows = _image_rows(image, 2, what)
+        return np.ascontiguousarray(rows).view("<u2").astype(np.uint16)
+    if image.encoding == DEPTH_METRES_ENCODING:
+        metres = np.ascontiguousarray(_image_rows(image, 4, what)).view("<f4")
+        with np.errstate(invalid="ignore"):
+            mm = np.where(np.isfinite(metres) & (metres > 0), np.round(metres * 1000.0), 0.0)
+        return np.clip(mm, 0, np.iinfo(np.uint16).max).astype(np.uint16)
+    raise RecordingError(
+        f"{what} has encoding '{image.encoding}'; softforce reads '16UC1' depth in mm "
+        f"(or '{DEPTH_METRES_ENCODING}' in metres)"
+    )
 
 
 def decode_camera_info(data: bytes, what: str = "camera_info") -> CameraIntrinsics:
