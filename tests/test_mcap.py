@@ -319,6 +319,15 @@ def test_file_cut_before_first_frame_is_an_error(recording, tmp_path):
         list(iter_frames(cut))
 
 
+def _with_distortion(info: bytes, distortion: tuple[float, ...]) -> bytes:
+    if not distortion:
+        return info
+    message = CameraCalibration.FromString(info)
+    del message.D[:]
+    message.D.extend(distortion)
+    return message.SerializeToString()
+
+
 def write_custom(
     path: Path,
     frames: list[RgbdFrame],
@@ -329,6 +338,7 @@ def write_custom(
     color_schema=RawImage,
     color_encoding="rgb8",
     depth_encoding="16UC1",
+    distortion=(),
 ) -> None:
     """A recording written with the bare mcap writer: extra topics, missing or odd ones,
     colour and depth in other encodings (an unknown one relabels the rgb8 bytes)."""
@@ -373,7 +383,8 @@ def write_custom(
             data = {
                 fmt.COLOR_TOPIC: color,
                 fmt.DEPTH_TOPIC: depth_data,
-                fmt.CAMERA_INFO_TOPIC: fmt.encode_camera_info(frame.intrinsics, t),
+                fmt.CAMERA_INFO_TOPIC: _with_distortion(fmt.encode_camera_info(
+                    frame.intrinsics, t), distortion),
                 fmt.ACTUATION_TOPIC: fmt.encode_actuation(frame.actuation),
                 fmt.MARKERS_TOPIC: fmt.encode_markers(frame.markers),
             }
@@ -396,6 +407,23 @@ def test_extra_topics_are_ignored(tmp_path):
     summary = read_summary(path)
     assert summary.frame_count == 4
     assert {t.topic: t.message_count for t in summary.topics}["/tf"] == 8
+
+
+def test_lens_distortion_is_said_once_and_not_applied(tmp_path):
+    """camera_info with distortion coefficients (another tool's, a lens that distorts):
+    softforce reads through K alone and says so once per recording."""
+    frames = make_frames(3)
+    path = tmp_path / "distorted.mcap"
+    write_custom(path, frames, distortion=(0.1, -0.05, 0.0, 0.0, 0.0))
+    with pytest.warns(RecordingWarning, match="distortion") as caught:
+        got = list(iter_frames(path))
+    assert sum("distortion" in str(w.message) for w in caught) == 1
+    for g, w in zip(got, frames, strict=True):
+        assert_same_frame(g, w)
+    write_custom(tmp_path / "plain.mcap", frames, distortion=(0.0,) * 5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RecordingWarning)
+        list(iter_frames(tmp_path / "plain.mcap"))
 
 
 @pytest.mark.parametrize(("color_encoding", "depth_encoding"),

@@ -290,11 +290,20 @@ class _FrameAssembler:
         self.incomplete = 0
         self.out_of_order = 0
         self.last_time_ns: int | None = None
+        self.distortion_told = False
 
     def assemble(self, time_ns: int, parts: dict[str, bytes]) -> RgbdFrame | None:
         where = f"{self.path} at log time {time_ns} ns"
         if fmt.CAMERA_INFO_TOPIC in parts:
             self.intrinsics = fmt.decode_camera_info(parts[fmt.CAMERA_INFO_TOPIC], where)
+            if not self.distortion_told and any(
+                    fmt.camera_distortion(parts[fmt.CAMERA_INFO_TOPIC])):
+                self.distortion_told = True
+                warnings.warn(
+                    f"{self.path}: camera_info has lens distortion coefficients, which "
+                    "softforce does not apply (it reads images through K alone): rectify "
+                    "the images first, or expect points off by the distortion at the edges",
+                    RecordingWarning, stacklevel=3)
         if fmt.COLOR_TOPIC not in parts or fmt.DEPTH_TOPIC not in parts or not self.intrinsics:
             self.incomplete += 1
             return None

@@ -219,6 +219,15 @@ def decode_camera_info(data: bytes, what: str = "camera_info") -> CameraIntrinsi
     )
 
 
+def camera_distortion(data: bytes) -> tuple[float, ...]:
+    """The distortion coefficients D of a serialized foxglove.CameraCalibration (softforce
+    reads images through K alone, docs/recordings.md); () when it cannot be parsed."""
+    try:
+        return tuple(float(d) for d in CameraCalibration.FromString(data).D)
+    except DecodeError:
+        return ()
+
+
 def _load_json(data: bytes, what: str) -> dict:
     try:
         document = json.loads(data)
