@@ -32,7 +32,7 @@ from scipy import stats
 from scipy.optimize import brentq
 
 from softforce_cli.calibration.rigid import RigidTransform
-from softforce_cli.camera.frame import RgbdFrame
+from softforce_cli.camera.frame import RgbdFrame, robot_actuation
 from softforce_cli.errors import CalibrationError
 from softforce_cli.model.robot import Robot, build_robot
 
@@ -209,8 +209,7 @@ def _sensed(robot: Robot, robot_from_camera: RigidTransform, loaded: list[RgbdFr
         settings.estimation, updates_per_frame=max(settings.estimation.updates_per_frame,
                                                    STATIC_UPDATES)))
     first = (reference or loaded)[0]
-    actuation = (first.actuation.values_in([c.name for c in robot.cable_specs])
-                 if first.actuation is not None else np.zeros(len(robot.cable_specs)))
+    actuation = robot_actuation(first.actuation, robot.cable_specs, "the first frame")
     sensor = ForceSensor(robot, robot_from_camera, actuation, settings,
                          KnownContact(load.point_mm, direction), tare_frames=len(reference))
     for index, frame in enumerate(reference):

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from softforce_cli.camera.frame import RgbdFrame, actuation_mismatch
+from softforce_cli.camera.frame import RgbdFrame, robot_actuation
 from softforce_cli.errors import CalibrationError
 from softforce_cli.estimation.session import FrameRange
 from softforce_cli.io.mcap_reader import iter_frames
@@ -23,14 +23,9 @@ def static_frames(recording: Path, frames: str | None, robot: Robot) -> list[Rgb
     chosen = [frame for _, frame, _ in selection.select(iter_frames(recording))]
     if not chosen:
         raise CalibrationError(f"{recording}: no frame in {frames or 'the recording'}")
-    for k, frame in enumerate(chosen):
-        if k and frame.actuation is None:
-            continue  # a frame without its own message holds the last one
-        why = actuation_mismatch(frame.actuation, robot.cable_specs)
-        if why is not None:
-            raise CalibrationError(f"{recording}: {why}")
-    names = [cable.name for cable in robot.cable_specs]
-    actuations = [f.actuation.values_in(names) for f in chosen if f.actuation is not None]
+    # a frame without its own message holds the last one; the first must have one
+    actuations = [robot_actuation(f.actuation, robot.cable_specs, str(recording))
+                  for k, f in enumerate(chosen) if k == 0 or f.actuation is not None]
     if any(not np.allclose(a, actuations[0]) for a in actuations):
         raise CalibrationError(f"{recording}: the actuation changes within the selected frames "
                                f"{frames or ''}; select the frames of one static state")

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from softforce_cli.camera.intrinsics import CameraIntrinsics
+from softforce_cli.errors import RecordingError
 
 if TYPE_CHECKING:
     from softforce_cli.model.config import CableSpec
@@ -48,7 +49,7 @@ def actuation_mismatch(actuation: Actuation | None,
     if actuation is None:
         if not names:
             return None
-        return (f"no /robot/actuation message in the first frame, but the robot's cables "
+        return (f"no /robot/actuation message, but the robot's cables "
                 f"({', '.join(names)}) need their inputs; record them with "
                 "`softforce record --actuation ACT.csv`")
     if (sorted(actuation.names) != sorted(names)
@@ -59,6 +60,19 @@ def actuation_mismatch(actuation: Actuation | None,
         return (f"the actuation is {actuation.control}-controlled but the robot file's cables "
                 f"are {', '.join(sorted(controls))}-controlled")
     return None
+
+
+def robot_actuation(actuation: Actuation | None, cables: Sequence[CableSpec],
+                    where: str) -> np.ndarray:
+    """(a,) float64 a frame's actuation values in the order of the robot's cables (their
+    names, in any order in the recording); RecordingError, one line "where: why", when it
+    does not drive them (actuation_mismatch)."""
+    why = actuation_mismatch(actuation, cables)
+    if why is not None:
+        raise RecordingError(f"{where}: {why}")
+    if actuation is None:  # a robot without cables
+        return np.zeros(0)
+    return actuation.values_in([cable.name for cable in cables])
 
 
 @dataclass(frozen=True)

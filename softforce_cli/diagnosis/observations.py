@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from softforce_cli.calibration.rigid import RigidTransform
-from softforce_cli.camera.frame import RgbdFrame
+from softforce_cli.camera.frame import RgbdFrame, robot_actuation
 from softforce_cli.errors import SoftforceError
-from softforce_cli.estimation.sensing import check_actuation, learned_robot_colour
+from softforce_cli.estimation.sensing import learned_robot_colour
 from softforce_cli.model.robot import Robot
 from softforce_cli.vision.pipeline import process_frame
 from softforce_cli.vision.settings import VisionSettings
@@ -134,8 +134,9 @@ def observe_recordings(
         for index, frame in _frames_in(iter_frames(Path(path)), frame_range):
             if stop_requested():
                 break
+            actuation = robot_actuation(frame.actuation, robot.cable_specs,
+                                        f"{path}, frame {index}")
             if robot_rgb is None:
-                check_actuation(robot, frame, str(path))
                 robot_rgb = learned_robot_colour(frame, robot_from_camera, robot.mesh.nodes_mm,
                                                  robot.mesh.surface_nodes, vision)
             first_ns = frame.time_ns if first_ns is None else first_ns
@@ -151,7 +152,7 @@ def observe_recordings(
             depth = (camera_from_robot.apply(points))[:, 2]
             frames.append(FrameObservation(
                 index=index, recording=number, time_s=offset_s + last_s,
-                actuation=frame.actuation.values_in([c.name for c in robot.cable_specs]),
+                actuation=actuation,
                 points_mm=points, depth_mm=depth,
                 markers_mm=_markers(frame, robot, robot_from_camera), table_plane=table))
         offset_s += last_s + 1.0

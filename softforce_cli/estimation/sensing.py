@@ -20,7 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from softforce_cli.calibration.rigid import RigidTransform
-from softforce_cli.camera.frame import RgbdFrame, actuation_mismatch
+from softforce_cli.camera.frame import RgbdFrame, robot_actuation
 from softforce_cli.errors import SensingError, SolverError
 from softforce_cli.estimation.intensity import IntensityProblem, solve_intensities
 from softforce_cli.estimation.linear_model import LinearizedModel
@@ -133,7 +133,6 @@ class ForceSensor:
         self.robot_rgb = None if robot_rgb is None else np.asarray(robot_rgb, dtype=float)
         self.features = Attachment.at_nodes(robot.feature_nodes)
         self.controls = tuple(spec.control for spec in robot.cable_specs)
-        self.cable_names = tuple(spec.name for spec in robot.cable_specs)
         self.actuation = np.asarray(start_actuation, dtype=float)
         self.linear: LinearizedModel | None = None
         # the mesh's nodes: all the sensor looks at (surface, features, contacts); a reduced
@@ -227,10 +226,8 @@ class ForceSensor:
         timings: dict[str, float] = {}
         time_s = frame.time_ns * 1e-9
         if frame.actuation is not None:
-            why = actuation_mismatch(frame.actuation, self.robot.cable_specs)
-            if why is not None:
-                raise SensingError(f"frame {index}: {why}")
-            self.actuation = frame.actuation.values_in(self.cable_names)
+            self.actuation = robot_actuation(frame.actuation, self.robot.cable_specs,
+                                             f"frame {index}")
         if self.robot_rgb is None:
             self.robot_rgb = learned_robot_colour(frame, self.transform, self.mesh_geometry()[0],
                                                   self.robot.mesh.surface_nodes,
@@ -620,12 +617,12 @@ def contact_nodes(centres_mm: np.ndarray, camera_mm: np.ndarray, positions_mm: n
     sight = centres_mm - np.asarray(camera_mm, dtype=float)
     sight /= np.linalg.norm(sight, axis=1, keepdims=True)
     axes = np.full((len(centres_mm), 3), np.nan) if axes is None else np.asarray(axes, float)
+    min_cosine = np.cos(np.radians(max_axis_angle_deg))
     chosen = np.empty(len(centres_mm), dtype=np.int64)
     for k, reach in enumerate(tree.query_ball_point(centres_mm, nearest_mm + CONTACT_REACH_MM)):
         reach = np.asarray(reach, dtype=np.int64)
         if np.isfinite(axes[k]).all():
-            pushable = -normals[surface_nodes[reach]] @ axes[k] >= np.cos(
-                np.radians(max_axis_angle_deg))
+            pushable = -normals[surface_nodes[reach]] @ axes[k] >= min_cosine
             reach = reach[pushable] if pushable.any() else reach
         if sighted is not None and not sighted[k]:  # by the distance in space
             candidates = reach
@@ -697,10 +694,3 @@ def learned_robot_colour(frame: RgbdFrame, robot_from_camera: RigidTransform,
     cloud = cloud_from_frame(frame.depth_mm, frame.color, frame.intrinsics, robot_from_camera,
                              crop_box_from_bounds(bounds, vision.crop_margin_mm))
     return np.asarray(learn_robot_colour(cloud, nodes_mm[surface_nodes]), dtype=float)
-
-
-def check_actuation(robot: Robot, frame: RgbdFrame, source: str) -> None:
-    """SensingError unless the frame's actuation names and controls match the robot's cables."""
-    why = actuation_mismatch(frame.actuation, robot.cable_specs)
-    if why is not None:
-        raise SensingError(f"{source}: {why}")

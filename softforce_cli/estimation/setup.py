@@ -15,9 +15,10 @@ import numpy as np
 from softforce_cli import __version__
 from softforce_cli.calibration.material import read_material, robot_with_material
 from softforce_cli.calibration.result import read_calibration
+from softforce_cli.camera.frame import robot_actuation
 from softforce_cli.camera.intrinsics import CameraIntrinsics
 from softforce_cli.errors import SensingError
-from softforce_cli.estimation.sensing import ForceSensor, KnownContact, check_actuation
+from softforce_cli.estimation.sensing import ForceSensor, KnownContact
 from softforce_cli.estimation.session import FrameRange
 from softforce_cli.estimation.settings import load_settings
 from softforce_cli.io.sense_files import check_output_folder
@@ -110,17 +111,14 @@ def prepare_sensing(inputs: SenseInputs, live: bool = False) -> PreparedSensing:
         first = next(frames, None)
         if first is None:
             raise SensingError(f"{source}: no frame to process (check --frames)")
-        if not (live and len(calibration.actuation)):
-            # live frames carry no actuation: the calibrated inputs are held
-            check_actuation(robot, first[1], source)
+        # the FE model starts from the recording's own first inputs; the calibration's
+        # describe the robot when it was calibrated (and a pose-only calibration has none);
+        # live frames carry no actuation: the calibrated inputs are held
+        start = (calibration.actuation if live and len(calibration.actuation)
+                 else robot_actuation(first[1].actuation, robot.cable_specs, source))
     except BaseException:
         resources.close()
         raise
-    # the FE model starts from the recording's own first inputs; the calibration's describe
-    # the robot when it was calibrated (and a pose-only calibration has none)
-    start = (first[1].actuation.values_in([c.name for c in robot.cable_specs])
-             if first[1].actuation is not None
-             else calibration.actuation)
     if inputs.tare_frames is not None and inputs.tare_frames < 0:
         raise SensingError("--tare must be a number of frames >= 0")
     sensor = ForceSensor(robot, calibration.robot_from_camera, start, settings, known, rgb,

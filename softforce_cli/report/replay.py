@@ -16,7 +16,7 @@ import numpy as np
 
 from softforce_cli.calibration.result import read_calibration
 from softforce_cli.calibration.rigid import RigidTransform
-from softforce_cli.camera.frame import actuation_mismatch
+from softforce_cli.camera.frame import robot_actuation
 from softforce_cli.errors import SensingError, SolverError
 from softforce_cli.estimation.sensing import learned_robot_colour
 from softforce_cli.estimation.settings import SenseSettings, load_settings
@@ -80,12 +80,8 @@ def write_replay(run: SenseRun, inputs: ReplayInputs, path: Path, force: bool = 
                 nodes = shape.positions_mm[: robot.mesh.node_count]
                 colour = learned_robot_colour(frame, transform, nodes,
                                               robot.mesh.surface_nodes, settings.vision)
-            actuation = None
-            if frame.actuation is not None:
-                why = actuation_mismatch(frame.actuation, robot.cable_specs)
-                if why is not None:
-                    raise ReportError(f"{inputs.recording}, frame {index}: {why}")
-                actuation = frame.actuation.values_in([c.name for c in robot.cable_specs])
+            actuation = None if frame.actuation is None else robot_actuation(
+                frame.actuation, robot.cable_specs, f"{inputs.recording}, frame {index}")
             shape, warm = _frame_shape(run, robot, index, actuation, shape, warm)
             vision = _vision(frame, transform, robot, shape, colour, settings, table)
             table = vision.table_plane

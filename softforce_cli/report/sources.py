@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from softforce_cli.camera.frame import actuation_mismatch
+from softforce_cli.camera.frame import robot_actuation
 from softforce_cli.io.mcap_reader import iter_frames
 from softforce_cli.model.config import CableSpec
 from softforce_cli.report.loading import ReportError, SenseRun
@@ -51,16 +51,13 @@ def recorded_actuation(recording: Path | None, index: int,
                        cables: Sequence[CableSpec]) -> np.ndarray | None:
     """(a,) the /robot/actuation values of frame `index` of the recording (the last one sent
     before it, as sense holds them), in the order of the robot's `cables`; None without a
-    recording or an actuation; ReportError when they are another robot's."""
+    recording or an actuation; RecordingError when they are another robot's."""
     if recording is None:
         return None
     values = None
     for number, frame in enumerate(iter_frames(recording)):
         if frame.actuation is not None:
-            why = actuation_mismatch(frame.actuation, cables)
-            if why is not None:
-                raise ReportError(f"{recording}, frame {number}: {why}")
-            values = frame.actuation.values_in([cable.name for cable in cables])
+            values = robot_actuation(frame.actuation, cables, f"{recording}, frame {number}")
         if number == index:
             break
     return values
