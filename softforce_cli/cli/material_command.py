@@ -57,7 +57,8 @@ def calibrate_material(robot_file: Path, output: Path, calibration: Path | None,
             table.add_column(name, justify="right")
         table.add_row("robot file", f"{fit.nominal_young_modulus_mpa:.4f}", "",
                       f"{fit.nominal_estimate_n:.4f}")
-        interval = "" if fit.ci95_mpa is None else \
+        # one loaded frame whose load is smooth in E has no spread and no step to show
+        interval = "none: one frame" if fit.ci95_mpa is None else \
             f"{fit.ci95_mpa[0]:.4f} to {fit.ci95_mpa[1]:.4f}"
         table.add_row("fitted", f"{fit.young_modulus_mpa:.4f}", interval,
                       f"{np.mean(fit.estimates_n):.4f} (known {fit.load_n:.4f})")

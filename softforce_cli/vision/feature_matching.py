@@ -65,8 +65,9 @@ def match_features(
     cloud X_r (n, 3) mm -> FeatureMatches.
 
     camera_mm (3,), optional: the camera's position in the robot frame (robot_from_camera's
-    translation). Features whose normal points away from it are hidden: the camera cannot see
-    that side, and the normal line would meet the opposite face of the body instead.
+    translation). Features whose normal points away from it, or more than
+    match_max_view_deg from it, are hidden: the camera cannot see that side, or sees it
+    edge-on, and the normal line would meet another face or another part of the body instead.
     robot_tree, optional: a cKDTree of robot_points_mm (Segmentation.robot_tree), reused.
     """
     features = np.asarray(feature_positions_mm, dtype=float).reshape(-1, 3)
@@ -75,8 +76,9 @@ def match_features(
     p = len(features)
     visible = np.ones(p, dtype=bool)
     if camera_mm is not None:
-        towards = np.einsum("ij,ij->i", np.asarray(camera_mm, dtype=float) - features, normals)
-        visible = towards > 0
+        sight = np.asarray(camera_mm, dtype=float) - features
+        towards = np.einsum("ij,ij->i", sight, normals) / np.linalg.norm(sight, axis=1)
+        visible = towards > np.cos(np.radians(settings.match_max_view_deg))
     best, line, mean = _nearest_to_lines(features, normals, visible, robot, settings,
                                          robot_tree)
     near_line = visible & (best >= 0) & (line <= settings.match_line_mm)

@@ -108,20 +108,25 @@ class VisionSettings:
                              other arms or the apex 50-200 mm away (the paper's Fig. 3 shows
                              the search near the feature). Larger than d_l so that a match
                              beyond d_l is seen and rejected rather than silently missed.
-    match_mean_mm          : 0 (off): with a value, the observed point is the mean of the robot
-                             points within
+    match_mean_mm          : 2.0, the observed point is the mean of the robot points within
                              this of the normal line (and within d_m along it of the nearest
-                             one), not the single nearest point: the paper's nearest point
-                             jumps by up to 1 mm between noise-free frames as holes and colour
-                             noise change which pixel is nearest, and the Diamond's features
-                             sit on the bars' edges, where the line leaves the body
-                             diagonally and the nearest point's depth along it depends on
-                             how close to the edge the camera sampled (docs/sensing_studies.md, "Why
-                             the probes read high"; 1.5 mm there: median intensity error
-                             8-12% instead of 8-18% over four noise draws). Off by default:
-                             with it, calibrate --material's one-frame fit on the sample
-                             weights settles on another branch of the sensed load at the
-                             same modulus (0.52 N for 0.66 N near 0.185 MPa) and refuses.
+                             one), not the paper's single nearest point, which jumps by up to
+                             1 mm between noise-free frames as holes and colour noise change
+                             which pixel is nearest. Measured on eleven recordings of the
+                             studies (docs/sensing_studies.md, "Averaging the matched points,
+                             with edge-on features hidden"): the median intensity error 10%
+                             lower summed over them, the 12-location probes 8.5% / 17.5%
+                             (median / 90th pct) on the 6.5 mm truth (8.3% / 16.4% with the
+                             nearest point) and 6.7% / 21.6% on the converged body (8.0% /
+                             24.7%); a camera 753 mm away 8.5% / 17.3% (7.1% / 11.3%). 0: the
+                             nearest point.
+    match_max_view_deg     : 75.0, a feature whose normal is further than this from the line
+                             of sight to the camera is hidden: the camera sees its face
+                             nearly edge-on, and the line along its normal meets another face
+                             or another bar first. An oblique camera had features under the
+                             bars matched 16-20 mm off their own skin (fit 4.3 mm RMS on a tare
+                             frame, 0.8 mm without them); with averaged matches and no limit,
+                             the tare took their offsets, and a 0.25 N probe read 0 N.
 
     Other cameras:
     decimation             : 0 (automatic): the frame's pixels are taken in k x k blocks
@@ -162,7 +167,8 @@ class VisionSettings:
     match_line_mm: float = 4.0
     match_limit_mm: float = 20.0
     match_search_mm: float = 30.0
-    match_mean_mm: float = 0.0
+    match_mean_mm: float = 2.0
+    match_max_view_deg: float = 75.0
     decimation: int = 0
     scale_to_camera: bool = True
 
@@ -185,6 +191,9 @@ class VisionSettings:
         if self.decimation not in range(MAX_DECIMATION + 1):
             raise ValueError(f"vision setting decimation must be a whole number from 0 "
                              f"(automatic) to {MAX_DECIMATION}, got {self.decimation}")
+        if not self.match_max_view_deg <= 90.0:
+            raise ValueError("vision setting match_max_view_deg must be at most 90 (a face "
+                             f"seen from behind is never matched), got {self.match_max_view_deg}")
         if self.match_search_mm < self.match_limit_mm:
             raise ValueError("vision setting match_search_mm must be at least match_limit_mm")
 
