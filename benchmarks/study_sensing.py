@@ -18,6 +18,8 @@ the figures in docs/figures/, which docs/sensing_studies.md quotes.
 - `--scenario FILE`: any scenario (benchmarks/scenarios/: another actuation, an oblique
   camera, large deformations, many contacts, contacts a camera above hides), sensed with
   the truth's camera pose and tared on its first 3 frames.
+- `--settings FILE`: sense (and fit the modulus) with a settings file's thresholds
+  (docs/sensing.md, "Settings"); outputs and results are named with its stem.
 - `--converged`: the truth closer to the mesh-converged body (P2-P0 on the 4.8 mm mesh of
   sample_data/diamond_fine, docs/locking.md's reference) instead of P2 on the 6.5 mm one;
   written to out/study_sensing_converged/.
@@ -53,6 +55,7 @@ FIGURES = ROOT / "docs" / "figures"
 TRUTH_ROBOT = ROOT / "sample_data" / "diamond_truth" / "diamond.toml"
 FINE_ROBOT = ROOT / "sample_data" / "diamond_fine" / "diamond.toml"
 ESTIMATOR = ROOT / "sample_data" / "diamond" / "diamond.toml"
+SETTINGS: Path | None = None  # --settings: sense and the material fit read it
 # The paper's weights up to 0.86 N, then 0.96 N instead of its 1.06 N: the locking-free truth
 # at E = 0.18 MPa buckles sideways near 1 N below the apex (its compliance grows from 8.7 to
 # 15.5 mm/N between 0.26 and 0.96 N, the apex drifts sideways, and Newton with continuation
@@ -158,19 +161,19 @@ def material_calibration(robot_file: Path, pose: Path, weights: Path) -> Path:
                       robot),
         static_frames(weights, f"0:{WEIGHT_HOLD_FRAMES}", robot),
         KnownLoad(np.array(APEX_LOAD_POINT), np.array([0.0, 0.0, -CALIBRATION_WEIGHT_N])),
-        load_settings(None))
+        load_settings(SETTINGS))
     document = json.loads(pose.read_text())
     document["material"] = fit.to_dict()
-    path = pose.with_name(pose.stem + "_material.json")
+    path = pose.with_name(pose.stem + _settings_suffix() + "_material.json")
     path.write_text(json.dumps(document, indent=2))
     return path
 
 
 def sense(recording_path: Path, robot_file: Path, calibration: Path, name: str,
           **options) -> dict:
-    folder = OUT / name
+    folder = OUT / (name + _settings_suffix())
     inputs = SenseInputs(recording=recording_path, robot=robot_file, calibration=calibration,
-                         output=folder, force=True, **options)
+                         output=folder, force=True, settings_file=SETTINGS, **options)
     prepared = prepare_sensing(inputs)
     run_sensing(prepared.frames, prepared.sensor, folder, prepared.header, force=True)
     return json.loads((folder / "sense.json").read_text())
@@ -225,6 +228,10 @@ def scenario_study(scenario: Path, robot_file: Path) -> dict:
     return {**comparison.summary(), "fps": document["summary"]["frames_per_s"]}
 
 
+def _settings_suffix() -> str:
+    return "" if SETTINGS is None else f"_{SETTINGS.stem}"
+
+
 def truth_pose(path: Path) -> Path:
     """The camera pose of a simulated recording's truth as a pose-only calibration."""
     pose = OUT / f"pose_{path.stem}.json"
@@ -263,12 +270,17 @@ def main() -> None:
                         help="sense this scenario file's recording instead (simulated once)")
     parser.add_argument("--table-iii-only", action="store_true",
                         help="Table III alone (markers and material calibration included)")
+    parser.add_argument("--settings", type=Path,
+                        help="a settings file for sense and the material fit (docs/sensing.md)")
     parser.add_argument("--converged", action="store_true",
                         help="the truth is P2-P0 on the 4.8 mm mesh (out/study_sensing_converged)")
     args = parser.parse_args()
+    global SETTINGS
+    SETTINGS = args.settings
     if args.converged:
         use_converged_truth()
     name = args.robot.stem if args.robot.stem != "diamond" else args.robot.parent.name
+    tag = name + _settings_suffix()  # the results files' name
     if args.scenario:
         print(json.dumps(scenario_study(args.scenario, args.robot), indent=1))
         return
@@ -277,7 +289,7 @@ def main() -> None:
                    "table_iii": table_iii(args.robot, pose_calibration(args.robot),
                                           args.width, args.height)}
         print(json.dumps(results, indent=1))
-        (OUT / f"results_table_iii_{name}.json").write_text(json.dumps(results, indent=1))
+        (OUT / f"results_table_iii_{tag}.json").write_text(json.dumps(results, indent=1))
         return
     if args.probes_only:
         locations = slice(args.first, None, args.every)
@@ -286,7 +298,7 @@ def main() -> None:
                    "probes": probes_study(args.robot, None, args.width, args.height,
                                           f"probes_{name}", locations)}
         print(json.dumps(results, indent=1))
-        (OUT / f"results_probes_{name}_{args.first}-{args.every}.json").write_text(
+        (OUT / f"results_probes_{tag}_{args.first}-{args.every}.json").write_text(
             json.dumps(results, indent=1))
         return
     pose = pose_calibration(args.robot)
@@ -295,7 +307,7 @@ def main() -> None:
                "probes": probes_study(args.robot, pose, args.width, args.height,
                                       f"probes_{name}")}
     print(json.dumps(results, indent=1))
-    (OUT / f"results_{name}.json").write_text(json.dumps(results, indent=1))
+    (OUT / f"results_{tag}.json").write_text(json.dumps(results, indent=1))
 
 
 if __name__ == "__main__":
