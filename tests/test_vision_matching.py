@@ -44,22 +44,39 @@ def test_normal_offsets_of_a_shifted_sphere_are_the_analytic_ones():
                                atol=0.05)
 
 
-def test_features_facing_away_from_the_camera_or_seen_edge_on_are_hidden():
+def test_features_facing_away_from_the_camera_are_hidden():
     normals = _fibonacci_sphere(60)
     observed = RADIUS * _fibonacci_sphere(40_000)
     camera = np.array([0.0, 0.0, 600.0])
-    sight = camera - RADIUS * normals
-    view_deg = np.degrees(np.arccos(np.einsum("ij,ij->i", sight, normals)
-                                    / np.linalg.norm(sight, axis=1)))
-    for limit in (90.0, 75.0, 60.0):
-        matches = match_features(RADIUS * normals, normals, observed,
-                                 VisionSettings(match_max_view_deg=limit), camera_mm=camera)
-        seen = view_deg < limit
-        assert 10 < seen.sum() < 40
-        np.testing.assert_array_equal(matches.matched, seen)
-        np.testing.assert_array_equal(matches.hidden, ~seen)
-        assert np.isnan(matches.points_mm[~seen]).all()
-        assert np.isnan(matches.normal_mm[~seen]).all()
+    matches = match_features(RADIUS * normals, normals, observed, VisionSettings(),
+                             camera_mm=camera)
+    facing = np.einsum("ij,ij->i", camera - RADIUS * normals, normals) > 0
+    assert 20 < facing.sum() < 40
+    # the sphere's own surface lies at every feature, edge-on ones included: all facing match
+    np.testing.assert_array_equal(matches.matched, facing)
+    np.testing.assert_array_equal(matches.hidden, ~facing)
+    assert np.isnan(matches.points_mm[~facing]).all()
+    assert np.isnan(matches.normal_mm[~facing]).all()
+
+
+def test_an_edge_on_feature_does_not_match_the_far_face_of_a_thin_part():
+    # a 16 mm slab: its top face (z = 0) has lost its points around the feature, as a face
+    # seen nearly edge-on loses its pixels, and the line along the feature's normal meets the
+    # bottom face 16 mm inward
+    top, bottom = _plane_at(0.0), _plane_at(-16.0)
+    holed = np.vstack([top[np.hypot(top[:, 0], top[:, 1]) > 6.0], bottom])
+    feature, normal = np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]])
+    overhead = np.array([0.0, 0.0, 600.0])
+    edge_on = 600.0 * np.array([np.sin(np.radians(80.0)), 0.0, np.cos(np.radians(80.0))])
+    seen_from_above = match_features(feature, normal, holed, VisionSettings(), overhead)
+    assert seen_from_above.matched[0] and seen_from_above.offset_mm[0] == -16.0  # the paper's
+    seen_edge_on = match_features(feature, normal, holed, VisionSettings(), edge_on)
+    assert seen_edge_on.hidden[0] and not seen_edge_on.matched[0]
+    # with its own face there, the edge-on feature matches it; 90 degrees takes none as edge-on
+    whole = np.vstack([top, bottom])
+    assert match_features(feature, normal, whole, VisionSettings(), edge_on).offset_mm[0] == 0.0
+    paper = VisionSettings(match_max_view_deg=90.0)
+    assert match_features(feature, normal, holed, paper, edge_on).offset_mm[0] == -16.0
 
 
 def test_averaged_matches_scatter_less_than_the_nearest_point():

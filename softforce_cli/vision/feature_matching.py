@@ -65,9 +65,12 @@ def match_features(
     cloud X_r (n, 3) mm -> FeatureMatches.
 
     camera_mm (3,), optional: the camera's position in the robot frame (robot_from_camera's
-    translation). Features whose normal points away from it, or more than
-    match_max_view_deg from it, are hidden: the camera cannot see that side, or sees it
-    edge-on, and the normal line would meet another face or another part of the body instead.
+    translation). Features whose normal points away from it are hidden: the camera cannot see
+    that side, and the normal line would meet the opposite face of the body instead. Features
+    seen nearly edge-on (normal more than match_max_view_deg from the line of sight) are
+    hidden unless their observed point lies within match_grazing_mm of them along the normal:
+    the camera samples such a face sparsely, and the line can meet the opposite face of a
+    thin part first.
     robot_tree, optional: a cKDTree of robot_points_mm (Segmentation.robot_tree), reused.
     """
     features = np.asarray(feature_positions_mm, dtype=float).reshape(-1, 3)
@@ -75,13 +78,17 @@ def match_features(
     robot = np.asarray(robot_points_mm, dtype=float).reshape(-1, 3)
     p = len(features)
     visible = np.ones(p, dtype=bool)
+    grazing = np.zeros(p, dtype=bool)
     if camera_mm is not None:
         sight = np.asarray(camera_mm, dtype=float) - features
         towards = np.einsum("ij,ij->i", sight, normals) / np.linalg.norm(sight, axis=1)
-        visible = towards > np.cos(np.radians(settings.match_max_view_deg))
+        visible = towards > 0
+        grazing = towards < np.cos(np.radians(settings.match_max_view_deg))
     best, line, mean = _nearest_to_lines(features, normals, visible, robot, settings,
                                          robot_tree)
     near_line = visible & (best >= 0) & (line <= settings.match_line_mm)
+    along = np.abs(np.einsum("ij,ij->i", mean - features, normals))
+    near_line[grazing & near_line] = along[grazing & near_line] <= settings.match_grazing_mm
     found = np.full((p, 3), np.nan)
     found[near_line] = mean[near_line]
     too_far = near_line & (np.linalg.norm(found - features, axis=1) > settings.match_limit_mm)
