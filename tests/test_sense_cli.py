@@ -333,6 +333,8 @@ def test_a_lost_frame_does_not_join_the_tare(probes_run):
     ("vision", "match_search_mm", float("inf"), "must be at most 1500 mm"),
     ("vision", "match_search_mm", 1e308, "must be at most 1500 mm"),
     ("vision", "voxel_mm", float("nan"), "must be positive"),
+    ("vision", "match_max_view_deg", 120.0, "must be at most 90"),
+    ("vision", "match_max_view_deg", float("nan"), "must be positive"),
     ("estimation", "rematch_mm", float("nan"), "is not a number"),
 ])
 def test_settings_that_are_not_finite_or_beyond_the_scene_are_refused(table, key, value,
