@@ -114,8 +114,8 @@ class VisionSettings:
                              1 mm between noise-free frames as holes and colour noise change
                              which pixel is nearest. Measured on eleven recordings of the
                              studies (docs/sensing_studies.md, "Averaging the matched points,
-                             with edge-on features hidden"): the median intensity error an
-                             eighth lower summed over them, the 12-location probes 8.5% /
+                             with edge-on features hidden"): the median intensity error 11%
+                             lower summed over them, the 12-location probes 8.5% /
                              17.8% (median / 90th pct) on the 6.5 mm truth (8.3% / 16.4%
                              with the nearest point) and 6.4% / 20.5% on the converged body
                              (8.0% / 24.7%); a camera 753 mm away 8.7% / 26.1% (7.1% /
