@@ -125,6 +125,38 @@ def test_a_small_step_at_the_root_is_reported_as_the_interval(monkeypatch):
     assert fit.ci95_mpa == pytest.approx((root / 1.05, root / 0.95), rel=1e-2)
 
 
+def test_a_step_to_a_modulus_that_cannot_be_sensed_is_taken_back(monkeypatch):
+    """The bracketing's first step (20% softer) lands where the model cannot be sensed (the
+    coarse Diamond's P2 model 17% softer snaps out of the sample's rest shape: no feature
+    matched, and sensing raised); the fit steps back halfway, brackets the root from there
+    and finds it, where it had refused."""
+    import numpy as np
+
+    from softforce_cli.calibration import material
+    from softforce_cli.errors import CalibrationError
+    from softforce_cli.model.robot import load_robot
+
+    def sensed(robot, *_):
+        modulus = robot.material.young_modulus_mpa
+        if modulus < 0.16:
+            raise CalibrationError("no loaded frame could be sensed (fewmatches)")
+        return np.array([0.532 * modulus / 0.18]), 1.0
+
+    monkeypatch.setattr(material, "_sensed", sensed)
+    load = material.KnownLoad(np.array([0.0, 0.0, 110.0]), np.array([0.0, 0.0, -0.5]))
+    fit = material.fit_young_modulus(load_robot(SAMPLE_ROBOT), None, [], [], load, None)
+    assert fit.young_modulus_mpa == pytest.approx(0.18 * 0.5 / 0.532, rel=5e-3)
+    # where even the smallest step back cannot be sensed, the error is the user's one line
+    def sensed_at_the_nominal_only(robot, *_):
+        if robot.material.young_modulus_mpa < 0.18:
+            raise CalibrationError("no loaded frame could be sensed (lost)")
+        return np.array([0.6]), 1.0
+
+    monkeypatch.setattr(material, "_sensed", sensed_at_the_nominal_only)
+    with pytest.raises(CalibrationError, match="could be sensed"):
+        material.fit_young_modulus(load_robot(SAMPLE_ROBOT), None, [], [], load, None)
+
+
 def _robot_copy(folder, *replacements):
     """The sample robot file in folder with its mesh path absolute and each (old, new) of
     replacements made once."""

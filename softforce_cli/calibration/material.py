@@ -47,6 +47,9 @@ MAX_PASSES = 8
 # steps by up to 20% between moduli 3% apart, as the feature matches at the settled shape
 # change; the fit then reports the step as its interval.
 MATCH_TOLERANCE = 0.1
+# A bracketing step to a modulus where no frame can be sensed is taken back halfway (in the
+# logarithm) at most this many times.
+BACKOFFS = 3
 # FE updates per frame in the fit: enough to reach the static state of a frame from the
 # previous one (the updates converge like Newton's method: 2-3 from a nearby state).
 STATIC_UPDATES = 6
@@ -145,12 +148,24 @@ def fit_young_modulus(
                 progress(len(evaluations), modulus)
         return float(np.mean(evaluations[modulus][0])) - magnitude
 
+    def stepped(modulus: float, factor: float) -> float:
+        """modulus x factor, or nearer to modulus where the model cannot be sensed there: a
+        softer body may snap out of the robot's shape under its cables (the coarse Diamond's
+        P2 model at 0.83 of its modulus matched no feature of the sample's rest frame)."""
+        for _ in range(BACKOFFS):
+            try:
+                excess(modulus * factor)
+                return modulus * factor
+            except CalibrationError:
+                factor = float(np.sqrt(factor))
+        return modulus * factor  # sensing it raises the error, for the user
+
     low = high = nominal
     # bracket the root, stepping by the proportional guess (at least 20%, at most 3x)
     while excess(low) > 0 and len(evaluations) < MAX_PASSES:
-        low /= float(np.clip((excess(low) + magnitude) / magnitude, 1.2, 3.0))
+        low = stepped(low, 1 / float(np.clip((excess(low) + magnitude) / magnitude, 1.2, 3.0)))
     while excess(high) < 0 and len(evaluations) < MAX_PASSES:
-        high *= float(np.clip(magnitude / (excess(high) + magnitude), 1.2, 3.0))
+        high = stepped(high, float(np.clip(magnitude / (excess(high) + magnitude), 1.2, 3.0)))
     if excess(low) > 0 or excess(high) < 0:
         raise CalibrationError(f"no modulus within {low:.4g}-{high:.4g} MPa makes the sensed "
                                "load match --load-n; check --load-n, --load-point and the frames")
