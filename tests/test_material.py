@@ -79,6 +79,31 @@ def test_material_needs_its_inputs(fitted, tmp_path, drop, fragment):
     assert_one_line_error(result, fragment)
 
 
+def test_the_fit_senses_with_the_settings_file_sense_reads(fitted, tmp_path):
+    """--settings reaches the fit's sensing: with the paper's nearest-point matching the
+    file's modulus reads the weight otherwise (the sensed load depends on the matching), and
+    a bad settings file, or --settings without --material, is one line."""
+    result, _, folder = fitted
+    default = json.loads(result.stdout)
+    paper = tmp_path / "paper.toml"
+    paper.write_text("[vision]\nmatch_mean_mm = 0.0\nmatch_max_view_deg = 90.0\n")
+    args = ["--robot", P2_ROBOT, "--calibration", folder / "pose.json", "--recording", WEIGHTS,
+            "--frames", "3:4", "--reference-frames", "0:1", *LOAD]
+    run = softforce("calibrate", "--material", *args, "--settings", paper,
+                    "-o", tmp_path / "paper.json", "--json")
+    assert run.returncode == 0, run.stderr
+    nearest = json.loads(run.stdout)
+    assert abs(nearest["nominal_estimate_n"] - default["nominal_estimate_n"]) > 1e-3
+    assert nearest["young_modulus_mpa"] == pytest.approx(TRUTH_MODULUS_MPA, rel=0.05)
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[vision]\nmatch_max_view_deg = 120.0\n")
+    assert_one_line_error(softforce("calibrate", "--material", *args, "--settings", bad,
+                                    "-o", tmp_path / "bad.json"), "match_max_view_deg")
+    assert_one_line_error(softforce("calibrate", "--robot", SAMPLE_ROBOT, "--recording",
+                                    WEIGHTS, "--settings", paper, "-o", tmp_path / "c.json"),
+                          "--settings is for --material")
+
+
 def test_a_jump_in_the_sensed_load_is_not_taken_for_a_root(monkeypatch):
     """Brent's method on a sensed load that jumps past the known one at 0.25 MPa (a frame
     that starts or stops matching) ends on the jump; the fit must refuse it."""

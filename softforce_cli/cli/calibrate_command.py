@@ -54,6 +54,9 @@ def calibrate(
     reference_frames: Annotated[str | None, typer.Option(
         "--reference-frames", help="With --material: the unloaded frames START:STOP of "
         "--reference (or of --recording when --reference is not given).")] = None,
+    settings: Annotated[Path | None, typer.Option(
+        "--settings", help="With --material: the settings file `sense --settings` reads "
+        "(docs/sensing.md); the fit senses the loaded frames with it.")] = None,
     json_output: JsonOption = False,
     force: ForceOption = False,
 ) -> None:
@@ -63,8 +66,11 @@ def calibrate(
         from softforce_cli.cli.material_command import calibrate_material
 
         calibrate_material(robot, output, calibration, recording, reference, load_point, load_n,
-                           frames, reference_frames, json_output, force)
+                           frames, reference_frames, settings, json_output, force)
         return
+    if settings is not None:
+        raise CalibrationError("--settings is for --material (the markers' calibration has "
+                               "no vision settings)")
     from softforce_cli.calibration.calibrate import CalibrationSettings
     from softforce_cli.calibration.result import result_to_dict, result_to_json
     from softforce_cli.calibration.robust import calibrate_checked

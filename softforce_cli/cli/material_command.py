@@ -15,7 +15,7 @@ from softforce_cli.errors import CalibrationError, SensingError
 def calibrate_material(robot_file: Path, output: Path, calibration: Path | None,
                        recording: Path | None, reference: Path | None, load_point: str | None,
                        load_n: str | None, frames: str | None, reference_frames: str | None,
-                       json_output: bool, force: bool) -> None:
+                       settings_file: Path | None, json_output: bool, force: bool) -> None:
     from softforce_cli.calibration.material import KnownLoad, fit_young_modulus
     from softforce_cli.calibration.material_inputs import static_frames
     from softforce_cli.calibration.result import read_calibration
@@ -35,6 +35,7 @@ def calibrate_material(robot_file: Path, output: Path, calibration: Path | None,
         load = KnownLoad(parse_vector(load_point, "--load-point"), parse_vector(load_n, "--load-n"))
     except SensingError as error:
         raise CalibrationError(str(error)) from error
+    settings = load_settings(settings_file)
     robot = load_robot(robot_file)
     pose = read_calibration(calibration)
     with stderr.status("reading the loaded and reference frames..."):
@@ -43,7 +44,7 @@ def calibrate_material(robot_file: Path, output: Path, calibration: Path | None,
             reference or recording, reference_frames, robot)
     with stderr.status("fitting Young's modulus...") as status:
         fit = fit_young_modulus(
-            robot, pose.robot_from_camera, loaded, reference, load, load_settings(None),
+            robot, pose.robot_from_camera, loaded, reference, load, settings,
             progress=lambda n, e: status.update(f"fitting Young's modulus: pass {n}, "
                                                 f"{e:.4f} MPa"))
     document = json.loads(Path(calibration).read_text())
