@@ -339,6 +339,7 @@ def write_custom(
     color_encoding="rgb8",
     depth_encoding="16UC1",
     distortion=(),
+    actuation_on_change=False,
 ) -> None:
     """A recording written with the bare mcap writer: extra topics, missing or odd ones,
     colour and depth in other encodings (an unknown one relabels the rgb8 bytes)."""
@@ -385,13 +386,20 @@ def write_custom(
                 fmt.DEPTH_TOPIC: depth_data,
                 fmt.CAMERA_INFO_TOPIC: _with_distortion(fmt.encode_camera_info(
                     frame.intrinsics, t), distortion),
-                fmt.ACTUATION_TOPIC: fmt.encode_actuation(frame.actuation),
+                fmt.ACTUATION_TOPIC: None if frame.actuation is None
+                else fmt.encode_actuation(frame.actuation),
                 fmt.MARKERS_TOPIC: fmt.encode_markers(frame.markers),
             }
             if extra:
                 writer.add_message(tf, t - 1000, b'{"x": 1}', t - 1000)
+            if actuation_on_change:  # logged when it changes, at a time of its own
+                if frame.actuation is not None:
+                    writer.add_message(ids[fmt.ACTUATION_TOPIC], t - 500_000,
+                                       data[fmt.ACTUATION_TOPIC], t - 500_000)
+                data.pop(fmt.ACTUATION_TOPIC)
             for topic in topics:
-                writer.add_message(ids[topic], t, data[topic], t)
+                if topic in data:
+                    writer.add_message(ids[topic], t, data[topic], t)
             if extra:
                 writer.add_message(tf, t, b'{"x": 2}', t)
         writer.finish()
@@ -407,6 +415,28 @@ def test_extra_topics_are_ignored(tmp_path):
     summary = read_summary(path)
     assert summary.frame_count == 4
     assert {t.topic: t.message_count for t in summary.topics}["/tf"] == 8
+
+
+def test_actuation_holds_until_it_changes(tmp_path):
+    """Another tool may log the inputs only when they change, at log times of their own:
+    each frame takes the last inputs before it, and no frame is counted incomplete."""
+    frames = make_frames(5)
+    changes = {0: None, 1: np.array([2.0, 1.0]), 2: None, 3: None, 4: np.array([4.0, 0.0])}
+    logged = [
+        RgbdFrame(f.time_ns, f.color, f.depth_mm, f.intrinsics,
+                  None if changes[i] is None else Actuation(("north", "east"), "displacement",
+                                                           changes[i]), f.markers)
+        for i, f in enumerate(frames)]
+    path = tmp_path / "sparse.mcap"
+    write_custom(path, logged, actuation_on_change=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = list(iter_frames(path))
+    assert [g.time_ns for g in got] == [f.time_ns for f in frames]
+    assert got[0].actuation is None
+    held = [g.actuation.values.tolist() for g in got[1:]]
+    assert held == [[2.0, 1.0], [2.0, 1.0], [2.0, 1.0], [4.0, 0.0]]
+    assert read_summary(path).frame_count == 5
 
 
 def test_lens_distortion_is_said_once_and_not_applied(tmp_path):

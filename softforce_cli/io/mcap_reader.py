@@ -22,7 +22,7 @@ from mcap.records import Channel, Message, Metadata, Schema
 from mcap.summary import Summary
 from mcap.writer import MCAP0_MAGIC
 
-from softforce_cli.camera.frame import RgbdFrame
+from softforce_cli.camera.frame import Actuation, RgbdFrame
 from softforce_cli.camera.intrinsics import CameraIntrinsics
 from softforce_cli.errors import RecordingError
 from softforce_cli.io import recording_format as fmt
@@ -281,7 +281,9 @@ def frames_from_messages(
 
 
 class _FrameAssembler:
-    """Decode the messages of one log time into an RgbdFrame, remembering the last intrinsics."""
+    """Decode the messages of one log time into an RgbdFrame, remembering the last intrinsics
+    and actuation: both hold until a message changes them, whether it came with a frame or at
+    a log time of its own."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
@@ -290,6 +292,7 @@ class _FrameAssembler:
         self.incomplete = 0
         self.out_of_order = 0
         self.last_time_ns: int | None = None
+        self.actuation: Actuation | None = None
         self.distortion_told = False
 
     def assemble(self, time_ns: int, parts: dict[str, bytes]) -> RgbdFrame | None:
@@ -304,6 +307,10 @@ class _FrameAssembler:
                     "softforce does not apply (it reads images through K alone): rectify "
                     "the images first, or expect points off by the distortion at the edges",
                     RecordingWarning, stacklevel=3)
+        if fmt.ACTUATION_TOPIC in parts:  # inputs hold until changed (docs/recordings.md)
+            self.actuation = fmt.decode_actuation(parts[fmt.ACTUATION_TOPIC], where)
+        if parts.keys() <= {fmt.CAMERA_INFO_TOPIC, fmt.ACTUATION_TOPIC}:
+            return None  # calibration or inputs logged on their own: kept for the next frame
         if fmt.COLOR_TOPIC not in parts or fmt.DEPTH_TOPIC not in parts or not self.intrinsics:
             self.incomplete += 1
             return None
@@ -314,7 +321,6 @@ class _FrameAssembler:
         color = fmt.decode_color(parts[fmt.COLOR_TOPIC], f"colour image of {where}")
         depth = fmt.decode_depth(parts[fmt.DEPTH_TOPIC], f"depth image of {where}")
         _check_sizes(where, color, depth, self.intrinsics)
-        actuation = parts.get(fmt.ACTUATION_TOPIC)
         markers = parts.get(fmt.MARKERS_TOPIC)
         self.frames += 1
         return RgbdFrame(
@@ -322,7 +328,7 @@ class _FrameAssembler:
             color=color,
             depth_mm=depth,
             intrinsics=self.intrinsics,
-            actuation=None if actuation is None else fmt.decode_actuation(actuation, where),
+            actuation=self.actuation,
             markers=None if markers is None else fmt.decode_markers(markers, where),
         )
 
