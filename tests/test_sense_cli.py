@@ -10,6 +10,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+from mcap.writer import CompressionType
+from mcap.writer import Writer as McapWriter
+from mcap_protobuf.schema import register_schema
 
 from softforce_cli.calibration.result import read_calibration
 from softforce_cli.camera.frame import Actuation
@@ -19,6 +24,7 @@ from softforce_cli.estimation.sensing import ForceSensor
 from softforce_cli.estimation.settings import EstimationSettings, SenseSettings
 from softforce_cli.estimation.summary import POOR_FIT_MM, SenseSummary
 from softforce_cli.estimation.truth_errors import compare_with_truth, pose_from_truth, read_truth
+from softforce_cli.io import recording_format as fmt
 from softforce_cli.io.mcap_reader import iter_frames
 from softforce_cli.io.mcap_writer import write_recording
 from softforce_cli.model.robot import load_robot
@@ -192,6 +198,74 @@ def test_cables_listed_in_another_order_are_read_by_name(probes_run, tmp_path):
     assert result.returncode == 0, result.stderr
     assert ((tmp_path / "out" / "contacts.csv").read_text()
             == (out / "contacts.csv").read_text())
+
+
+def write_as_another_tool(frames, path: Path) -> None:
+    """The frames as another tool might log them within the format's contract
+    (docs/recordings.md): colour bgr8, depth 32FC1 in metres (no depth as NaN), camera_info
+    once, the inputs only when they change and at log times of their own (but the first), a
+    /tf topic,
+    lz4-compressed chunks of many frames, no softforce metadata."""
+    with open(path, "wb") as stream:
+        writer = McapWriter(stream, chunk_size=4 << 20, compression=CompressionType.LZ4)
+        writer.start(profile="", library="another tool")
+        image, info = register_schema(writer, RawImage), register_schema(writer, CameraCalibration)
+        channels = {fmt.COLOR_TOPIC: writer.register_channel(fmt.COLOR_TOPIC, "protobuf", image),
+                    fmt.DEPTH_TOPIC: writer.register_channel(fmt.DEPTH_TOPIC, "protobuf", image),
+                    fmt.CAMERA_INFO_TOPIC: writer.register_channel(fmt.CAMERA_INFO_TOPIC,
+                                                                   "protobuf", info),
+                    fmt.ACTUATION_TOPIC: writer.register_channel(fmt.ACTUATION_TOPIC, "json", 0),
+                    "/tf": writer.register_channel("/tf", "json", 0)}
+
+        def log(topic: str, time_ns: int, data: bytes) -> None:
+            writer.add_message(channels[topic], time_ns, data, time_ns)
+
+        inputs = None
+        for number, frame in enumerate(frames):
+            t = frame.time_ns
+            if number == 0:
+                log(fmt.CAMERA_INFO_TOPIC, t, fmt.encode_camera_info(frame.intrinsics, t))
+            if inputs is None or not np.array_equal(frame.actuation.values, inputs):
+                inputs = frame.actuation.values
+                log(fmt.ACTUATION_TOPIC, t - 1_000_000 if number else t,
+                    fmt.encode_actuation(frame.actuation))
+            log("/tf", t, b'{"x": 1}')
+            depth_m = np.where(frame.depth_mm > 0, frame.depth_mm / 1000.0, np.nan)
+            log(fmt.DEPTH_TOPIC, t, RawImage(
+                timestamp=fmt.timestamp_from_ns(t), frame_id=fmt.OPTICAL_FRAME_ID,
+                width=depth_m.shape[1], height=depth_m.shape[0], encoding="32FC1",
+                step=4 * depth_m.shape[1], data=depth_m.astype("<f4").tobytes(),
+            ).SerializeToString())
+            log(fmt.COLOR_TOPIC, t, RawImage(
+                timestamp=fmt.timestamp_from_ns(t), frame_id=fmt.OPTICAL_FRAME_ID,
+                width=frame.color.shape[1], height=frame.color.shape[0], encoding="bgr8",
+                step=3 * frame.color.shape[1], data=frame.color[:, :, ::-1].tobytes(),
+            ).SerializeToString())
+        writer.finish()
+
+
+@pytest.mark.parametrize("name", ["probes", "diagnose_clean"])
+def test_a_recording_another_tool_wrote_senses_as_softforces_own(name, tmp_path):
+    """A sample recording logged as another tool might (write_as_another_tool; the clean
+    diagnosis recording's inputs change every other frame): every frame read, the same
+    fits and exactly the contacts of the recording softforce wrote."""
+    original = ROOT / "sample_data" / "recordings" / f"{name}.mcap"
+    calibration = pose_calibration(original.with_suffix("").with_suffix(".truth.json"), tmp_path)
+    write_as_another_tool(iter_frames(original), tmp_path / "another_tool.mcap")
+    for recording, out in ((original, "own"), (tmp_path / "another_tool.mcap", "another")):
+        result = softforce("sense", recording, "--robot", SAMPLE_ROBOT, "--calibration",
+                           calibration, "-o", tmp_path / out)
+        assert result.returncode == 0, result.stderr
+        assert "skipped" not in result.stderr
+
+    def fits(out: str) -> list[list[str]]:
+        rows = csv.reader((tmp_path / out / "frames.csv").read_text().splitlines())
+        return [row[:FRAMES_HEADER.count(",")] for row in rows]
+
+    assert len(fits("own")) == len(list(iter_frames(original))) + 1
+    assert fits("another") == fits("own")
+    assert ((tmp_path / "another" / "contacts.csv").read_text()
+            == (tmp_path / "own" / "contacts.csv").read_text())
 
 
 def test_actuation_values_are_put_in_the_robots_order():
