@@ -173,6 +173,31 @@ def test_colour_stays_close_to_the_base_colour():
     assert shade.min() >= 0.7 - 1.0 / 40
 
 
+def test_a_distant_light_shades_by_its_own_angle_and_casts_shadows():
+    """A plane facing the camera lit 60 degrees off its normal: ambient + (1 - ambient)
+    cos 60 everywhere but in the shadow of a ball 120 mm from it toward the light; lit from
+    its back, the plane keeps the ambient share; lit from the camera, its base colour."""
+    color = np.array([200, 100, 50])
+    plane = quad([0, 0, 500.0], [1, 0, 0], [0, -1, 0], 1000.0, color=color)
+    toward_light = np.array([np.sin(np.radians(60)), 0.0, -np.cos(np.radians(60))])
+    ball = sphere(np.array([0.0, 0.0, 500.0]) + 120.0 * toward_light, 10.0)
+    view = render([plane, ball], VGA, CAMERA_AT_ORIGIN, ambient=0.4,
+                  light_direction=toward_light)
+    lit = 200 * (0.4 + 0.6 * 0.5)
+    shadow_pixel = (240, 320)  # the ball's centre seen from the light falls on (0, 0, 500)
+    far_pixel = (240, 40)
+    assert view.geometry_index[shadow_pixel] == 0  # the plane, seen past the ball
+    assert view.color[shadow_pixel][0] == pytest.approx(200 * 0.4, abs=1)
+    assert view.color[far_pixel][0] == pytest.approx(lit, abs=1)
+    # cos_incidence stays the viewing ray's (the sensor model's grazing holes)
+    assert view.cos_incidence[far_pixel] == pytest.approx(
+        1.0 / np.linalg.norm(pixel_rays(VGA)[far_pixel]), abs=1e-5)
+    behind = render([plane], VGA, CAMERA_AT_ORIGIN, ambient=0.4, light_direction=[0, 0, 1])
+    assert (behind.color[behind.hit][:, 0] == 80).all()
+    facing = render([plane], VGA, CAMERA_AT_ORIGIN, ambient=0.4, light_direction=[0, 0, -1])
+    assert facing.color[240, 320, 0] == 200
+
+
 def test_vertex_colours_are_interpolated():
     plane = quad([0, 0, 500.0], [1, 0, 0], [0, -1, 0], 100.0)
     colors = np.array([[0, 0, 0], [200, 0, 0], [200, 0, 0], [0, 0, 0]])  # red grows with x

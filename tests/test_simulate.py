@@ -140,6 +140,9 @@ def test_weights_make_the_apex_sink_monotonically():
         # a depth stream the D415 does not have (its minimum range would hide the robot)
         ("width = 424\nheight = 240", "width = 1920\nheight = 1080",
          "measures depth at 1280x720 at most"),
+        ("[camera]", "[scene]\nambient = 1.5\n[camera]", "scene.ambient must be in [0, 1]"),
+        ("[camera]", "[scene]\nlight_direction = [0, 0, 0]\n[camera]",
+         "scene.light_direction must not be zero"),
     ],
 )
 def test_bad_scenarios_give_one_clear_line(tmp_path, old, new, message):
@@ -200,3 +203,5 @@ def test_scenario_defaults_follow_the_design(tmp_path):
     assert scenario.camera.position_mm == (0.0, 0.0, 580.0)  # docs/virtual_camera.md: 0.58 m above
     assert scenario.frame_count == 3
     assert scenario.robot == Path(tmp_path / "r.toml").resolve()
+    # lit from the camera with 0.7 of the paint as ambient light (docs/virtual_camera.md)
+    assert scenario.scene.ambient == 0.7 and scenario.scene.light_direction is None

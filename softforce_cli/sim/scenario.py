@@ -18,6 +18,7 @@ from softforce_cli.errors import ScenarioError
 from softforce_cli.fem.materials import LAWS
 from softforce_cli.model.effects import Effect, EffectError, parse_effects
 from softforce_cli.sim.camera_pose import look_at
+from softforce_cli.sim.render import AMBIENT
 
 LOAD_KINDS = ("weight", "probe")
 # Bounds that keep a typo from asking for hours of work: a 4096-pixel image side (the D415
@@ -48,7 +49,8 @@ _KEYS = {
         "noise",
         "noise_scale",
     },
-    "scene": {"table_z_mm", "robot_rgb", "probe_rgb", "weight_rgb", "table_rgb"},
+    "scene": {"table_z_mm", "robot_rgb", "probe_rgb", "weight_rgb", "table_rgb", "ambient",
+              "light_direction"},
     "markers": {"publish", "sigma_mm"},
     "frame": {"actuation", "repeat", "load"},
     "load": {"kind", "point_mm", "force_n", "mass_g", "direction", "hook_radius_mm"},
@@ -135,6 +137,10 @@ class SceneSpec:
     probe_rgb: tuple[int, int, int]
     weight_rgb: tuple[int, int, int]
     table_rgb: tuple[int, int, int]
+    # sim.render's lighting: the share of the colour lit whatever the orientation, and the
+    # direction toward a distant light in the robot frame (None: the light at the camera)
+    ambient: float = AMBIENT
+    light_direction: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -230,6 +236,9 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
             probe_rgb=check.rgb(scene.get("probe_rgb", [220, 50, 40]), "scene.probe_rgb"),
             weight_rgb=check.rgb(scene.get("weight_rgb", [230, 190, 40]), "scene.weight_rgb"),
             table_rgb=check.rgb(scene.get("table_rgb", [150, 118, 84]), "scene.table_rgb"),
+            ambient=check.fraction(scene.get("ambient", AMBIENT), "scene.ambient"),
+            light_direction=None if "light_direction" not in scene else check.direction(
+                scene["light_direction"], "scene.light_direction"),
         ),
         publish_markers=bool(markers.get("publish", False)),
         marker_sigma_mm=check.non_negative(markers.get("sigma_mm", 0.0), "markers.sigma_mm"),
@@ -329,6 +338,18 @@ class _Checker:
         if number < 0:
             raise ScenarioError(f"{self.source}: {key} must be >= 0, got {number:g}")
         return number
+
+    def fraction(self, value: Any, key: str) -> float:
+        number = self.number(value, key)
+        if not 0.0 <= number <= 1.0:
+            raise ScenarioError(f"{self.source}: {key} must be in [0, 1], got {number:g}")
+        return number
+
+    def direction(self, value: Any, key: str) -> tuple[float, float, float]:
+        vector = self.vector(value, key)
+        if not any(vector):
+            raise ScenarioError(f"{self.source}: {key} must not be zero")
+        return vector
 
     def vector(self, value: Any, key: str) -> tuple[float, float, float]:
         if not isinstance(value, list) or len(value) != 3:

@@ -283,7 +283,9 @@ def _frames(
                 if states is not None:
                     states[effective, modulus] = state
             view = _biased(render(_scene(scenario, robot, state), intrinsics,
-                                  actual_world_from_cam), depth_scale(scenario.effects))
+                                  actual_world_from_cam, ambient=scenario.scene.ambient,
+                                  light_direction=scenario.scene.light_direction),
+                           depth_scale(scenario.effects))
             markers_robot = robot.marker_points.positions(state.equilibrium.positions_mm)
             markers_cam = (transform_points(cam_from_world, markers_robot)
                            if len(markers_robot) else markers_robot)
