@@ -1,13 +1,27 @@
-"""Colour region growing and the robot/object split, on point sets with known answers."""
+"""Colour region growing and the robot/object split, on point sets with known answers and
+on a scene the virtual D415 renders under a lamp."""
 
 from __future__ import annotations
 
 import numpy as np
+import open3d as o3d
 import pytest
 
+from softforce_cli.calibration.rigid import RigidTransform
+from softforce_cli.camera.intrinsics import CameraIntrinsics
 from softforce_cli.errors import SensingError
-from softforce_cli.vision.point_cloud import PointCloud
-from softforce_cli.vision.segmentation import grow_regions, learn_robot_colour, segment_robot
+from softforce_cli.sim.camera_pose import look_at
+from softforce_cli.sim.depth_noise import apply_d415
+from softforce_cli.sim.props import probe_surface
+from softforce_cli.sim.render import SceneSurface, render, table_surface
+from softforce_cli.vision.pipeline import observe_frame
+from softforce_cli.vision.point_cloud import PointCloud, cloud_from_frame
+from softforce_cli.vision.segmentation import (
+    grow_regions,
+    learn_robot_colour,
+    robot_paint,
+    segment_robot,
+)
 from softforce_cli.vision.settings import VisionSettings
 
 ROBOT = np.array([40, 90, 210])
@@ -106,3 +120,92 @@ def test_robot_colour_is_learned_from_points_near_the_model():
     np.testing.assert_allclose(learned, ROBOT * 0.9, atol=2.0)  # median of the shading
     with pytest.raises(SensingError, match="in view"):
         learn_robot_colour(cloud, model + np.array([500.0, 0.0, 0.0]))
+
+
+def test_the_robots_paint_shaded_is_the_robot_and_other_paints_are_not():
+    """A white lamp scales a paint's three channels alike: the robot colour at 0.3 to 1.6 of
+    its brightness is the robot (far beyond the 70 levels of the Euclidean rule at 0.3), a
+    grey, the table and the probe at any brightness are not, nor the robot's paint darker
+    than robot_min_shade (its direction is noise there)."""
+    shades = np.array([0.3, 0.42, 0.7, 1.0, 1.2])
+    assert robot_paint(ROBOT * shades[:, None], ROBOT).all()
+    assert not robot_paint(ROBOT * shades[:2, None], ROBOT,
+                           VisionSettings(robot_hue_deg=0.0)).any()  # the rule before
+    others = np.vstack([grey * np.array([1.0, 1.0, 1.0]) for grey in (40, 80, 160)]
+                       + [TABLE * k for k in (0.3, 1.0)] + [PROBE * k for k in (0.3, 1.0)])
+    assert not robot_paint(others, ROBOT).any()
+    assert not robot_paint(ROBOT * 0.2, ROBOT).any()
+    # a skin probe is 8.5 degrees from a white robot, which is robot at any shade
+    white, skin = np.array([225, 225, 220]), np.array([225, 170, 140])
+    assert robot_paint(white * np.array([[0.3], [0.7]]), white).all()
+    assert not robot_paint(skin * np.array([[0.3], [0.7], [1.0]]), white).any()
+
+
+def test_dark_paints_side_by_side_are_split_by_their_direction():
+    """Under a low lamp (a 0.15 ambient share) a probe's shaded side [33, 8, 6] lies 38
+    levels from the robot's shaded face (0.15 of its paint), so the regions merge (40), but
+    70 degrees from it; a skin probe's shaded side [67, 51, 42] lies 29 levels from a white
+    robot's shadow [67, 67, 66] (their points join, 30), 8.5 degrees from it. The default
+    region_hue_deg keeps both pairs apart, and each side is classified by its own colour;
+    the same paint shaded from 0.15 to 1 of its colour along a face stays one region, its
+    dark points' directions turned by the colour noise."""
+    rng = np.random.default_rng(5)
+    hue = VisionSettings().region_hue_deg
+    face, rod = _grid(0, 20, 0, 20, 0.0), _grid(20, 30, 0, 20, 0.0)
+    points = np.vstack([face, rod])
+    for robot, face_rgb, rod_rgb in ((ROBOT * 0.5, ROBOT * 0.15, [33, 8, 6]),
+                                     ([190, 190, 186], [67, 67, 66], [67, 51, 42])):
+        colors = np.vstack([_colour(len(face), face_rgb, rng), _colour(len(rod), rod_rgb, rng)])
+        assert grow_regions(points, colors, 3.0, 30.0, 40.0, 10).count == 1  # hue not tested
+        assert grow_regions(points, colors, 3.0, 30.0, 40.0, 10, hue_deg=hue).count == 2
+        segmentation = segment_robot(PointCloud(points, colors), robot)
+        np.testing.assert_array_equal(segmentation.robot.points_mm, face)
+        np.testing.assert_array_equal(segmentation.objects.points_mm, rod)
+    shaded = _grid(0, 60, 0, 10, 0.0)
+    shade = 0.15 + 0.85 * shaded[:, 0] / 60.0
+    colors = np.clip(np.rint(ROBOT * shade[:, None] + rng.normal(0, 2.0, (len(shaded), 3))),
+                     0, 255).astype(np.uint8)
+    assert grow_regions(shaded, colors, 3.0, 30.0, 40.0, 10, hue_deg=hue).count == 1
+
+
+@pytest.mark.parametrize("key, value", [("robot_hue_deg", 90.0), ("region_hue_deg", -1.0),
+                                        ("robot_min_shade", 1.5), ("robot_max_shade", 0.9),
+                                        ("robot_max_shade", 20.0)])
+def test_hue_and_shade_settings_are_checked(key, value):
+    with pytest.raises(ValueError, match=key):
+        VisionSettings(**{key: value})
+
+
+def test_a_lamps_shadow_on_the_robot_is_robot_not_a_contact():
+    """A blue box pressed by a red rod, rendered by the virtual D415 lit from the camera and
+    under a lamp above it (its shaded faces and the rod's shadow at 0.3 of their paint):
+    the same single contact both ways with the colour's direction; without it (both angles
+    0), the rod's shadow on the box is an object bordering the robot, and the contact is
+    found on the shadow's edge, 9 mm off."""
+    box = o3d.geometry.TriangleMesh.create_box(100.0, 30.0, 30.0).subdivide_midpoint(3)
+    vertices = np.asarray(box.vertices) - [50.0, 15.0, 0.0]
+    robot = SceneSurface("robot", vertices, np.asarray(box.triangles), ROBOT)
+    table = table_surface(-0.5, 400.0, TABLE)
+    push = np.array([-0.4, 0.3, -1.0])
+    rod = probe_surface(np.array([20.0, 0.0, 30.0]), push / np.linalg.norm(push), PROBE)
+    camera = CameraIntrinsics(640, 480, 615.0, 615.0, 320.0, 240.0)
+    pose = look_at(np.array([0.0, -150.0, 500.0]), np.array([0.0, 0.0, 15.0]))
+    robot_from_camera = RigidTransform(pose[:3, :3], pose[:3, 3])
+    bounds = np.array([vertices.min(axis=0), vertices.max(axis=0)])
+
+    def contacts(settings: VisionSettings, **light) -> np.ndarray:
+        rng = np.random.default_rng(0)
+        depth, color = apply_d415(render([robot, table], camera, pose, **light), camera, rng)
+        learned = learn_robot_colour(cloud_from_frame(depth, color, camera, robot_from_camera),
+                                     vertices)  # on a frame without the rod, as sense does
+        depth, color = apply_d415(render([robot, table, rod], camera, pose, **light), camera,
+                                  rng)
+        return observe_frame(depth, color, camera, robot_from_camera, bounds, learned,
+                             settings).contacts.centres_mm
+
+    lamp = {"ambient": 0.3, "light_direction": [1.0, 1.0, 2.0]}
+    lit_from_camera = contacts(VisionSettings())
+    assert len(lit_from_camera) == 1
+    np.testing.assert_allclose(contacts(VisionSettings(), **lamp), lit_from_camera, atol=1.0)
+    euclidean_only = contacts(VisionSettings(robot_hue_deg=0.0, region_hue_deg=0.0), **lamp)
+    assert np.linalg.norm(euclidean_only - lit_from_camera, axis=1).min() > 5.0

@@ -22,6 +22,10 @@ from softforce_cli.vision.filters import radius_pairs
 from softforce_cli.vision.point_cloud import PointCloud
 from softforce_cli.vision.settings import VisionSettings
 
+# RMS colour noise of an RGB-D camera's colour stream, levels per channel (the D415's, as
+# the virtual camera draws it): it turns the direction of a dark colour in RGB
+COLOUR_NOISE_LEVELS = 2.0
+
 
 @dataclass(frozen=True, eq=False)
 class Regions:
@@ -91,6 +95,25 @@ def _region_pairs(
     return np.stack([key // count, key % count], axis=1), counts
 
 
+def _same_hue(first: np.ndarray, second: np.ndarray, first_norm: np.ndarray,
+              second_norm: np.ndarray, hue_deg: float,
+              counts: np.ndarray | float = 1.0) -> np.ndarray:
+    """(m,) bool: which pairs of colours (m, 3), (m, 3) of norms (m,), (m,) point within
+    hue_deg of each other in RGB, or within what the camera's colour noise turns colours
+    that dark (three standard deviations; for means of `counts` (m,) points each, sqrt(counts)
+    times less)."""
+    with np.errstate(divide="ignore"):
+        noise = (3.0 * np.sqrt(2.0) * COLOUR_NOISE_LEVELS) / (
+            np.minimum(first_norm, second_norm) * np.sqrt(counts))
+    allowed = np.maximum(np.radians(hue_deg), np.minimum(noise, np.pi))
+    return np.einsum("ij,ij->i", first, second) >= np.cos(allowed) * first_norm * second_norm
+
+
+def _norms(colors: np.ndarray) -> np.ndarray:
+    """(n,) Euclidean norms of colours (n, 3): their brightness in RGB levels."""
+    return np.sqrt(np.einsum("ij,ij->i", colors, colors))
+
+
 def grow_regions(
     points_mm: np.ndarray,
     colors: np.ndarray,
@@ -99,6 +122,7 @@ def grow_regions(
     region_threshold: float,
     min_points: int,
     pairs: np.ndarray | None = None,
+    hue_deg: float = 0.0,
 ) -> Regions:
     """Colour region growing on points (n, 3) mm with colours (n, 3) (RGB levels).
 
@@ -107,6 +131,9 @@ def grow_regions(
     2. Neighbouring regions whose mean colours differ by less than region_threshold merge.
     3. A region of fewer than min_points points joins the neighbouring region of at least
        min_points with which it shares the most neighbour pairs; with none, it is dropped.
+    In 1 and 2 two colours must also point within hue_deg of each other in RGB, or within
+    what the colour noise turns colours that dark (0: not tested): in the dark, two paints
+    differ by fewer levels than the Euclidean thresholds, but still by their direction.
     """
     n = len(points_mm)
     if n == 0:
@@ -114,14 +141,26 @@ def grow_regions(
     if pairs is None:
         pairs = radius_pairs(points_mm, neighbour_mm)
     rgb = colors.astype(np.float32)
-    difference = np.take(rgb, pairs[:, 0].copy(), axis=0) - np.take(rgb, pairs[:, 1].copy(), axis=0)
+    one, other = pairs[:, 0].copy(), pairs[:, 1].copy()
+    first, second = np.take(rgb, one, axis=0), np.take(rgb, other, axis=0)
+    difference = first - second
     similar = np.einsum("ij,ij->i", difference, difference) < point_threshold**2
+    if hue_deg > 0.0:
+        norms = _norms(rgb)
+        similar &= _same_hue(first, second, np.take(norms, one), np.take(norms, other),
+                             hue_deg)
     count, labels = _components(n, pairs[similar])
     # 2. merge regions of close mean colour
-    means, _ = _means(labels, count, rgb)
+    means, sizes = _means(labels, count, rgb)
     neighbours, _ = _region_pairs(labels, count, pairs)
     gap = np.linalg.norm(means[neighbours[:, 0]] - means[neighbours[:, 1]], axis=1)
-    count, merged = _components(count, neighbours[gap < region_threshold])
+    close = gap < region_threshold
+    if hue_deg > 0.0:
+        a, b = neighbours[:, 0], neighbours[:, 1]
+        norms = _norms(means)
+        close &= _same_hue(means[a], means[b], norms[a], norms[b], hue_deg,
+                           np.minimum(sizes[a], sizes[b]))
+    count, merged = _components(count, neighbours[close])
     labels = merged[labels]
     # 3. small regions into their most connected large neighbour
     sizes = np.bincount(labels, minlength=count)
@@ -155,7 +194,7 @@ def segment_robot(
     """Split a filtered cloud into robot X_r and objects X_o by colour region growing.
 
     robot_rgb (3,): the robot's colour (given, or learn_robot_colour). A region whose mean
-    colour lies within settings.robot_colour_tolerance of it is robot; any other is object.
+    colour is the robot's paint (robot_paint) is robot; any other is object.
     pairs (m, 2), optional: the cloud's point pairs at most region_neighbour_mm apart.
     """
     regions = grow_regions(
@@ -166,9 +205,9 @@ def segment_robot(
         settings.region_colour_threshold,
         settings.min_region_points,
         pairs,
+        settings.region_hue_deg,
     )
-    distance = np.linalg.norm(regions.colors - np.asarray(robot_rgb, dtype=float), axis=1)
-    robot_regions = distance < settings.robot_colour_tolerance
+    robot_regions = robot_paint(regions.colors, robot_rgb, settings)
     labels = regions.labels
     is_robot = np.zeros(len(cloud), dtype=bool)
     is_robot[labels >= 0] = robot_regions[labels[labels >= 0]]
@@ -178,6 +217,25 @@ def segment_robot(
         regions=regions,
         robot_regions=robot_regions,
     )
+
+
+def robot_paint(colors: np.ndarray, robot_rgb: np.ndarray,
+                settings: VisionSettings = VisionSettings()) -> np.ndarray:
+    """(r,) bool: which colours (r, 3) RGB levels are the robot's paint: within
+    settings.robot_colour_tolerance of robot_rgb (3,), or robot_rgb shaded by a white light,
+    pointing within robot_hue_deg of it at robot_min_shade to robot_max_shade times its
+    brightness."""
+    colors = np.asarray(colors, dtype=float).reshape(-1, 3)
+    robot = np.asarray(robot_rgb, dtype=float)
+    near = np.linalg.norm(colors - robot, axis=1) < settings.robot_colour_tolerance
+    if settings.robot_hue_deg == 0.0:
+        return near
+    brightness, robot_brightness = np.linalg.norm(colors, axis=1), np.linalg.norm(robot)
+    shade = brightness / max(robot_brightness, 1e-9)
+    aligned = colors @ robot >= np.cos(np.radians(settings.robot_hue_deg)) * np.maximum(
+        brightness * robot_brightness, 1e-9)
+    return near | (aligned & (shade >= settings.robot_min_shade)
+                   & (shade <= settings.robot_max_shade))
 
 
 def learn_robot_colour(

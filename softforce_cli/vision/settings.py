@@ -9,6 +9,9 @@ from softforce_cli.vision.decimation import MAX_DECIMATION, decimation_factor
 # The longest distance a vision setting may give (mm): beyond the 1.5 m a D415 sees a soft
 # robot from, where match_search_mm's line samples would no longer fit in memory.
 MAX_LENGTH_MM = 1500.0
+# The brightest shade of the learned robot colour robot_max_shade may allow: 255 levels in
+# each channel are at most 10 times a colour learned at a tenth of them.
+MAX_SHADE = 10.0
 
 
 @dataclass(frozen=True)
@@ -58,6 +61,15 @@ class VisionSettings:
     region_colour_threshold: 40.0, neighbouring regions whose mean colours differ by less are
                              merged (PCL's region merging): one surface split by a shading
                              gradient or a dark seam becomes one region again.
+    region_hue_deg         : 6.0, in both steps two colours must also point within this
+                             angle of each other in RGB, or within what the camera's colour
+                             noise (2 levels a channel, 3 sigma) turns colours that dark: 14
+                             degrees between two points at 35 levels. Under a lamp the
+                             Euclidean thresholds join what the shade brings close: a probe's
+                             shaded side to the robot's (38 levels apart, 70 degrees), a skin
+                             probe's to a white robot's shadow (29 levels, 8.5 degrees); 10
+                             degrees left the latter joined, 20 too (docs/vision.md,
+                             "Lighting"). 0 turns it off.
     min_region_points      : 10, smaller regions merge into the neighbouring region they share
                              most neighbour pairs with, or are dropped when isolated (PCL's
                              minimum cluster size).
@@ -65,6 +77,20 @@ class VisionSettings:
                              close to the robot colour. Shading darkens a surface to 0.7 of its
                              colour at grazing incidence ([40, 90, 210] -> [28, 63, 147] is at
                              70); other paints in the sample scenes lie 170 or more away.
+    robot_hue_deg          : 5.0, a region belongs to the robot too when its mean colour is
+                             the robot's shaded: a white light scales the three channels alike,
+                             so the colour points the robot colour's way in RGB (within this
+                             angle) at robot_min_shade to robot_max_shade times its brightness.
+                             A lamp beside the robot leaves the faces it does not reach and the
+                             probe's shadow at 0.4 of the learned colour, 98 levels from it,
+                             within 0.6 degrees of its direction; the sample scenes' other
+                             paints lie 33 (a grey), 45 (the table) and 66 (the probes) degrees
+                             away, a skin probe 8.5 degrees from a white robot (10 took it for
+                             the robot under a lamp; docs/vision.md, "Lighting"). 0 turns it
+                             off.
+    robot_min_shade        : 0.25, the darkest shade of the robot colour taken for the robot
+                             by its direction (near black, a colour's direction is noise).
+    robot_max_shade        : 2.0, the brightest (the colour is learned on the first frame).
 
     Contacts (Algorithm 2):
     contact_radius_mm      : 4.0, r_search (the paper's camera code).
@@ -163,8 +189,12 @@ class VisionSettings:
     region_neighbour_mm: float = 3.0
     point_colour_threshold: float = 30.0
     region_colour_threshold: float = 40.0
+    region_hue_deg: float = 6.0
     min_region_points: int = 10
     robot_colour_tolerance: float = 70.0
+    robot_hue_deg: float = 5.0
+    robot_min_shade: float = 0.25
+    robot_max_shade: float = 2.0
     contact_radius_mm: float = 4.0
     contact_min_neighbours: int = 3
     cluster_tolerance_mm: float = 5.0
@@ -184,7 +214,8 @@ class VisionSettings:
     def __post_init__(self) -> None:
         for name, value in vars(self).items():
             may_be_zero = ("contact_min_neighbours", "outlier_min_neighbours", "scale_to_camera",
-                           "match_mean_mm", "occluded_tip_mm", "decimation")
+                           "match_mean_mm", "occluded_tip_mm", "decimation", "robot_hue_deg",
+                           "region_hue_deg")
             if name not in may_be_zero and not value > 0:
                 raise ValueError(f"vision setting {name} must be positive, got {value}")
             # a length beyond the scene (or infinite) sizes arrays the machine cannot hold
@@ -200,6 +231,14 @@ class VisionSettings:
         if self.decimation not in range(MAX_DECIMATION + 1):
             raise ValueError(f"vision setting decimation must be a whole number from 0 "
                              f"(automatic) to {MAX_DECIMATION}, got {self.decimation}")
+        for name in ("robot_hue_deg", "region_hue_deg"):
+            if not 0.0 <= getattr(self, name) < 90.0:
+                raise ValueError(f"vision setting {name} must be from 0 (off) to below 90, "
+                                 f"got {getattr(self, name)}")
+        if not self.robot_min_shade <= 1.0 <= self.robot_max_shade <= MAX_SHADE:
+            raise ValueError("vision settings robot_min_shade and robot_max_shade must bracket "
+                             f"1 (the learned colour), at most {MAX_SHADE:g}, got "
+                             f"{self.robot_min_shade} and {self.robot_max_shade}")
         if not self.match_max_view_deg <= 90.0:
             raise ValueError("vision setting match_max_view_deg must be at most 90 (a face "
                              f"seen from behind is never matched), got {self.match_max_view_deg}")
