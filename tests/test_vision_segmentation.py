@@ -14,6 +14,7 @@ from softforce_cli.sim.camera_pose import look_at
 from softforce_cli.sim.depth_noise import apply_d415
 from softforce_cli.sim.props import probe_surface
 from softforce_cli.sim.render import SceneSurface, render, table_surface
+from softforce_cli.vision.contacts import detect_contacts
 from softforce_cli.vision.pipeline import observe_frame
 from softforce_cli.vision.point_cloud import PointCloud, cloud_from_frame
 from softforce_cli.vision.segmentation import (
@@ -209,3 +210,30 @@ def test_a_lamps_shadow_on_the_robot_is_robot_not_a_contact():
     np.testing.assert_allclose(contacts(VisionSettings(), **lamp), lit_from_camera, atol=1.0)
     euclidean_only = contacts(VisionSettings(robot_hue_deg=0.0, region_hue_deg=0.0), **lamp)
     assert np.linalg.norm(euclidean_only - lit_from_camera, axis=1).min() > 5.0
+
+
+def test_a_rim_in_the_backgrounds_colour_is_neither_robot_nor_object():
+    """A depth camera's edge fattening (or a colour image registered a pixel off the depth)
+    lines the robot's outline with points at the robot's depth in the table's colour: a
+    strip 2 mm wide beside a robot slab's edge, none of it further than rim_mm from the
+    robot. It is dropped, while a probe resting on the slab, reaching 20 mm from it, stays
+    the one object and the one contact; with rim_mm = 0 the strip is an object touching
+    the robot along its whole length, a contact of its own."""
+    rng = np.random.default_rng(6)
+    slab = _grid(-30, 30, -15, 15, 50.0)
+    strip = _grid(-30, 30, 15.5, 17.5, 50.0, step=0.7)
+    x, y, z = np.meshgrid([4.0, 5.0, 6.0], [-1.0, 0.0, 1.0], 51.0 + np.arange(21.0))
+    rod = np.column_stack([x.ravel(), y.ravel(), z.ravel()])  # 3 x 3 points, 20 mm up
+    points = np.vstack([slab, strip, rod])
+    colors = np.vstack([_colour(len(slab), ROBOT, rng), _colour(len(strip), TABLE, rng),
+                        _colour(len(rod), PROBE, rng)])
+    cloud = PointCloud(points, colors)
+    segmentation = segment_robot(cloud, ROBOT)
+    np.testing.assert_array_equal(segmentation.objects.points_mm, rod)
+    assert segmentation.rim_regions.sum() == 1
+    contacts = detect_contacts(segmentation)
+    assert len(contacts) == 1
+    np.testing.assert_allclose(contacts.centres_mm[0, :2], [5.0, 0.0], atol=1.0)
+    kept = segment_robot(cloud, ROBOT, VisionSettings(rim_mm=0.0))
+    assert len(kept.objects) == len(strip) + len(rod)
+    assert len(detect_contacts(kept, VisionSettings(rim_mm=0.0))) == 2

@@ -253,7 +253,7 @@ def object_regions(segmentation: Segmentation) -> np.ndarray:
     segmentation's connected objects, which occluded_tips takes as the objects."""
     labels = segmentation.regions.labels
     is_object = labels >= 0
-    is_object[is_object] = ~segmentation.robot_regions[labels[is_object]]
+    is_object[is_object] = segmentation.object_regions[labels[is_object]]
     return labels[is_object]
 
 

@@ -50,21 +50,31 @@ class Regions:
 class Segmentation:
     """The robot's points X_r and the other objects' points X_o of one cloud.
 
-    robot, objects : the two clouds; points of dropped regions are in neither.
+    robot, objects : the two clouds; points of dropped regions and of rims are in neither.
     regions        : the colour regions they came from (labels index the input cloud).
     robot_regions  : (r,) bool, which regions are robot.
+    rim_regions    : (r,) bool, which other regions are the robot's rim (segment_robot),
+                     None: none.
+    robot_tree     : a KD-tree of the robot points, built once (here when not given) for the
+                     rims, contact detection and every feature matching of the frame.
     """
 
     robot: PointCloud
     objects: PointCloud
     regions: Regions
     robot_regions: np.ndarray
+    rim_regions: np.ndarray | None = None
+    robot_tree: cKDTree | None = None
+
+    def __post_init__(self) -> None:
+        if self.robot_tree is None:
+            object.__setattr__(self, "robot_tree", cKDTree(self.robot.points_mm))
 
     @cached_property
-    def robot_tree(self) -> cKDTree:
-        """A KD-tree of the robot points, built once for contact detection and every feature
-        matching of the frame."""
-        return cKDTree(self.robot.points_mm)
+    def object_regions(self) -> np.ndarray:
+        """(r,) bool, which regions are objects: neither robot nor rim."""
+        rims = np.zeros_like(self.robot_regions) if self.rim_regions is None else self.rim_regions
+        return ~self.robot_regions & ~rims
 
     @property
     def dropped_points(self) -> int:
@@ -194,7 +204,11 @@ def segment_robot(
     """Split a filtered cloud into robot X_r and objects X_o by colour region growing.
 
     robot_rgb (3,): the robot's colour (given, or learn_robot_colour). A region whose mean
-    colour is the robot's paint (robot_paint) is robot; any other is object.
+    colour is the robot's paint (robot_paint) is robot; any other is object, unless none of
+    its points lies further than settings.rim_mm from a robot point: such a region is the
+    robot's own rim in another colour (a depth camera bleeds the nearer depth a pixel or two
+    into the background beside an edge, and a colour image registered a pixel off the depth
+    paints the edge in the background's colour), in neither cloud.
     pairs (m, 2), optional: the cloud's point pairs at most region_neighbour_mm apart.
     """
     regions = grow_regions(
@@ -209,14 +223,36 @@ def segment_robot(
     )
     robot_regions = robot_paint(regions.colors, robot_rgb, settings)
     labels = regions.labels
+    kept = labels >= 0
     is_robot = np.zeros(len(cloud), dtype=bool)
-    is_robot[labels >= 0] = robot_regions[labels[labels >= 0]]
+    is_robot[kept] = robot_regions[labels[kept]]
+    robot = cloud.subset(is_robot)
+    robot_tree = cKDTree(robot.points_mm)
+    is_object = kept & ~is_robot
+    rim_regions = _rims(cloud.points_mm, labels, is_object, robot_regions, robot_tree,
+                        settings.rim_mm)
+    is_object[is_object] = ~rim_regions[labels[is_object]]
     return Segmentation(
-        robot=cloud.subset(is_robot),
-        objects=cloud.subset((labels >= 0) & ~is_robot),
+        robot=robot,
+        objects=cloud.subset(is_object),
         regions=regions,
         robot_regions=robot_regions,
+        rim_regions=rim_regions,
+        robot_tree=robot_tree,
     )
+
+
+def _rims(points_mm: np.ndarray, labels: np.ndarray, is_object: np.ndarray,
+          robot_regions: np.ndarray, robot_tree: cKDTree, rim_mm: float) -> np.ndarray:
+    """(r,) bool: the regions not robot (robot_regions (r,)) none of whose points (n, 3),
+    labelled (n,), is_object (n,), lies further than rim_mm from robot_tree's points."""
+    rims = np.zeros(len(robot_regions), dtype=bool)
+    if rim_mm == 0.0 or robot_tree.n == 0 or not is_object.any():
+        return rims
+    gaps, _ = robot_tree.query(points_mm[is_object], distance_upper_bound=rim_mm)
+    rims[np.unique(labels[is_object])] = True
+    rims[labels[is_object][np.isinf(gaps)]] = False  # a point beyond rim_mm
+    return rims
 
 
 def robot_paint(colors: np.ndarray, robot_rgb: np.ndarray,

@@ -92,6 +92,16 @@ class VisionSettings:
                              by its direction (near black, a colour's direction is noise).
     robot_max_shade        : 2.0, the brightest (the colour is learned on the first frame).
 
+    rim_mm                 : 4.0, a region not of the robot's colour none of whose points lies
+                             further than this from a robot point is the robot's own rim seen
+                             in another colour, and no object: a depth camera bleeds the nearer
+                             depth a pixel or two past an edge (the stereo window's edge
+                             fattening), a colour image registered a pixel off the depth paints
+                             the edge in the background's colour. Two pixels of bleed at
+                             640x480 and 0.54 m left such rims up to 3.3 mm from the robot, a
+                             probe's region reaches 10 mm and more (docs/vision.md, "Edges").
+                             0 turns it off.
+
     Contacts (Algorithm 2):
     contact_radius_mm      : 4.0, r_search (the paper's camera code).
     contact_min_neighbours : 3, n_neigh: an object point with MORE than this many robot points
@@ -195,6 +205,7 @@ class VisionSettings:
     robot_hue_deg: float = 5.0
     robot_min_shade: float = 0.25
     robot_max_shade: float = 2.0
+    rim_mm: float = 4.0
     contact_radius_mm: float = 4.0
     contact_min_neighbours: int = 3
     cluster_tolerance_mm: float = 5.0
@@ -215,7 +226,7 @@ class VisionSettings:
         for name, value in vars(self).items():
             may_be_zero = ("contact_min_neighbours", "outlier_min_neighbours", "scale_to_camera",
                            "match_mean_mm", "occluded_tip_mm", "decimation", "robot_hue_deg",
-                           "region_hue_deg")
+                           "region_hue_deg", "rim_mm")
             if name not in may_be_zero and not value > 0:
                 raise ValueError(f"vision setting {name} must be positive, got {value}")
             # a length beyond the scene (or infinite) sizes arrays the machine cannot hold
