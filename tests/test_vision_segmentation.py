@@ -237,3 +237,20 @@ def test_a_rim_in_the_backgrounds_colour_is_neither_robot_nor_object():
     kept = segment_robot(cloud, ROBOT, VisionSettings(rim_mm=0.0))
     assert len(kept.objects) == len(strip) + len(rod)
     assert len(detect_contacts(kept, VisionSettings(rim_mm=0.0))) == 2
+
+
+def test_a_marker_sticker_on_the_robots_skin_is_no_contact():
+    """A flat sticker of another colour on the robot's face (a calibration marker left on):
+    a region that never leaves the robot's skin, so a rim, neither robot nor object, and no
+    contact; as an object (rim_mm = 0), robot points surround it: a contact."""
+    rng = np.random.default_rng(7)
+    slab = _grid(-30, 30, -30, 30, 50.0)
+    sticker = np.linalg.norm(slab[:, :2] - [10.0, -5.0], axis=1) < 3.0
+    colors = _colour(len(slab), ROBOT, rng)
+    colors[sticker] = _colour(int(sticker.sum()), [40, 200, 60], rng)
+    cloud = PointCloud(slab, colors)
+    assert len(detect_contacts(segment_robot(cloud, ROBOT))) == 0
+    as_object = VisionSettings(rim_mm=0.0)
+    found = detect_contacts(segment_robot(cloud, ROBOT, as_object), as_object)
+    assert len(found) == 1
+    np.testing.assert_allclose(found.centres_mm[0, :2], [10.0, -5.0], atol=0.5)

@@ -97,10 +97,10 @@ class VisionSettings:
                              in another colour, and no object: a depth camera bleeds the nearer
                              depth a pixel or two past an edge (the stereo window's edge
                              fattening), a colour image registered a pixel off the depth paints
-                             the edge in the background's colour. Two pixels of bleed at
-                             640x480 and 0.54 m left such rims up to 3.3 mm from the robot, a
-                             probe's region reaches 10 mm and more (docs/vision.md, "Edges").
-                             0 turns it off.
+                             the edge in the background's colour, a marker sticker lies on the
+                             skin. Two pixels of bleed at 640x480 and 0.54 m left such rims up
+                             to 3.3 mm from the robot; a probe's region reaches 10 mm and more
+                             (docs/vision.md, "Edges"). 0 turns it off.
 
     Contacts (Algorithm 2):
     contact_radius_mm      : 4.0, r_search (the paper's camera code).
