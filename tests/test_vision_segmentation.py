@@ -254,3 +254,19 @@ def test_a_marker_sticker_on_the_robots_skin_is_no_contact():
     found = detect_contacts(segment_robot(cloud, ROBOT, as_object), as_object)
     assert len(found) == 1
     np.testing.assert_allclose(found.centres_mm[0, :2], [10.0, -5.0], atol=0.5)
+
+
+def test_a_white_highlight_on_the_robots_paint_is_the_robot():
+    """A glossy paint under a white light shows its colour plus white (the dichromatic
+    reflection model): a body term a ROBOT and a surface term b (1, 1, 1), b >= 0. Such
+    colours are the robot's, far beyond the shaded rule (up to 28 degrees from the paint);
+    a grey (a = 0), the table, skin and the weight's yellow (a < 0) are not. A near-grey
+    robot colour spans no plane with white: its highlights are its shades."""
+    highlights = np.array([ROBOT * a + b for a, b in ((0.8, 80.0), (0.7, 120.0), (0.5, 150.0))])
+    assert robot_paint(highlights, ROBOT).all()
+    assert not robot_paint(highlights, ROBOT, VisionSettings(robot_hue_deg=0.0)).any()
+    others = np.array([[160.0, 160.0, 160.0], TABLE, [225, 170, 140], [230, 190, 40], PROBE])
+    assert not robot_paint(others, ROBOT).any()
+    white = np.array([225.0, 225.0, 220.0])
+    assert not robot_paint(np.array([[225.0, 170.0, 140.0], [200.0, 200.0, 200.0]]), white)[0]
+

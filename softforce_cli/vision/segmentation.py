@@ -22,6 +22,9 @@ from softforce_cli.vision.filters import radius_pairs
 from softforce_cli.vision.point_cloud import PointCloud
 from softforce_cli.vision.settings import VisionSettings
 
+# A robot colour within this angle of grey (in RGB) spans no plane with a white highlight:
+# its highlights are its own shades, brighter (segmentation._highlighted)
+MIN_SATURATION_DEG = 10.0
 # RMS colour noise of an RGB-D camera's colour stream, levels per channel (the D415's, as
 # the virtual camera draws it): it turns the direction of a dark colour in RGB
 COLOUR_NOISE_LEVELS = 2.0
@@ -260,7 +263,7 @@ def robot_paint(colors: np.ndarray, robot_rgb: np.ndarray,
     """(r,) bool: which colours (r, 3) RGB levels are the robot's paint: within
     settings.robot_colour_tolerance of robot_rgb (3,), or robot_rgb shaded by a white light,
     pointing within robot_hue_deg of it at robot_min_shade to robot_max_shade times its
-    brightness."""
+    brightness, or so shaded under a white highlight (_highlighted)."""
     colors = np.asarray(colors, dtype=float).reshape(-1, 3)
     robot = np.asarray(robot_rgb, dtype=float)
     near = np.linalg.norm(colors - robot, axis=1) < settings.robot_colour_tolerance
@@ -270,8 +273,27 @@ def robot_paint(colors: np.ndarray, robot_rgb: np.ndarray,
     shade = brightness / max(robot_brightness, 1e-9)
     aligned = colors @ robot >= np.cos(np.radians(settings.robot_hue_deg)) * np.maximum(
         brightness * robot_brightness, 1e-9)
-    return near | (aligned & (shade >= settings.robot_min_shade)
-                   & (shade <= settings.robot_max_shade))
+    shaded = aligned & (shade >= settings.robot_min_shade) & (shade <= settings.robot_max_shade)
+    return near | shaded | _highlighted(colors, robot, settings)
+
+
+def _highlighted(colors: np.ndarray, robot: np.ndarray, settings: VisionSettings) -> np.ndarray:
+    """(r,) bool: colours (r, 3) that are the robot colour (3,) shaded under a white
+    highlight. A glossy surface reflects a white light's colour at its surface on top of its
+    paint's (the dichromatic reflection model, Shafer 1985): a robot + b (1, 1, 1), here with
+    a from robot_min_shade to robot_max_shade, b >= 0, within robot_hue_deg of that plane.
+    None for a robot colour within MIN_SATURATION_DEG of grey, whose highlights are its own
+    shades (the shaded rule's)."""
+    white = np.ones(3)
+    if robot @ white < np.cos(np.radians(MIN_SATURATION_DEG)) * np.linalg.norm(robot) * np.sqrt(3):
+        basis = np.column_stack([robot, white])
+        (body, surface), *_ = np.linalg.lstsq(basis, colors.T, rcond=None)
+        off_plane = np.linalg.norm(colors - (basis @ np.vstack([body, surface])).T, axis=1)
+        return ((off_plane <= np.sin(np.radians(settings.robot_hue_deg))
+                 * np.linalg.norm(colors, axis=1))
+                & (body >= settings.robot_min_shade) & (body <= settings.robot_max_shade)
+                & (surface >= 0.0))
+    return np.zeros(len(colors), dtype=bool)
 
 
 def learn_robot_colour(

@@ -86,8 +86,10 @@ class VisionSettings:
                              within 0.6 degrees of its direction; the sample scenes' other
                              paints lie 33 (a grey), 45 (the table) and 66 (the probes) degrees
                              away, a skin probe 8.5 degrees from a white robot (10 took it for
-                             the robot under a lamp; docs/vision.md, "Lighting"). 0 turns it
-                             off.
+                             the robot under a lamp; docs/vision.md, "Lighting"). So is the
+                             robot colour shaded under a white highlight (within this angle of
+                             the plane it spans with white, segmentation._highlighted). 0
+                             turns both off.
     robot_min_shade        : 0.25, the darkest shade of the robot colour taken for the robot
                              by its direction (near black, a colour's direction is noise).
     robot_max_shade        : 2.0, the brightest (the colour is learned on the first frame).
