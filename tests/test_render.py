@@ -198,6 +198,29 @@ def test_a_distant_light_shades_by_its_own_angle_and_casts_shadows():
     assert facing.color[240, 320, 0] == 200
 
 
+def test_a_glossy_scene_adds_a_white_highlight_where_the_light_mirrors_into_the_camera():
+    """Blinn-Phong: 255 specular cos_half^shininess added to every channel. With the light
+    at the camera the half-way vector is the view: a sphere's highlight sits where its
+    normal faces the camera (the pixel over its centre, all but saturated), and 30 degrees
+    off it adds 255 x 0.5 cos(30)^40; with a lamp 60 degrees to the side it moves to the
+    normal half-way between, and a plane facing the camera gets 30 degrees' worth."""
+    ball = sphere([0, 0, 500.0], 100.0, resolution=200, smooth=True)
+    matte = render([ball], VGA, CAMERA_AT_ORIGIN, ambient=1.0)
+    glossy = render([ball], VGA, CAMERA_AT_ORIGIN, ambient=1.0, specular=0.5, shininess=40.0)
+    added = glossy.color.astype(float) - matte.color
+    assert added[240, 320, 2] == pytest.approx(min(255.0 - 200.0, 127.5), abs=1)
+    # a pixel whose normal is 30 degrees off the view (cos_incidence 0.866): cos^40 = 0.0032
+    off = np.abs(glossy.cos_incidence - np.cos(np.radians(30))) < 0.002
+    np.testing.assert_allclose(added[off][:, 0], 127.5 * glossy.cos_incidence[off] ** 40, atol=1)
+    plane = quad([0, 0, 500.0], [1, 0, 0], [0, -1, 0], 1000.0)
+    side = [np.sin(np.radians(60)), 0.0, -np.cos(np.radians(60))]
+    lit = render([plane], VGA, CAMERA_AT_ORIGIN, ambient=0.4, light_direction=side,
+                 specular=0.5)
+    # the normal (0, 0, -1) is 30 degrees from the half-way vector at the image centre
+    assert lit.color[240, 320, 0] == pytest.approx(
+        200 * (0.4 + 0.6 * 0.5) + 127.5 * np.cos(np.radians(30)) ** 40, abs=1)
+
+
 def test_vertex_colours_are_interpolated():
     plane = quad([0, 0, 500.0], [1, 0, 0], [0, -1, 0], 100.0)
     colors = np.array([[0, 0, 0], [200, 0, 0], [200, 0, 0], [0, 0, 0]])  # red grows with x

@@ -143,6 +143,7 @@ def test_weights_make_the_apex_sink_monotonically():
         ("[camera]", "[scene]\nambient = 1.5\n[camera]", "scene.ambient must be in [0, 1]"),
         ("[camera]", "[scene]\nlight_direction = [0, 0, 0]\n[camera]",
          "scene.light_direction must not be zero"),
+        ("[camera]", "[scene]\nspecular = 2\n[camera]", "scene.specular must be in [0, 1]"),
     ],
 )
 def test_bad_scenarios_give_one_clear_line(tmp_path, old, new, message):

@@ -25,6 +25,7 @@ from softforce_cli.sim.camera_pose import invert_pose, transform_points
 BACKGROUND_RGB = (40, 40, 40)  # neutral dark grey where no ray hits anything
 AMBIENT = 0.7  # share of the base colour lit regardless of orientation (keeps colours flat)
 TABLE_RGB = (150, 118, 84)  # a light wood
+SHININESS = 40.0  # Blinn-Phong exponent of a glossy scene: a highlight about 10 degrees wide
 SHADOW_OFFSET_MM = 0.05  # a shadow ray's start off its surface: above float32 rounding at 1 m
 
 
@@ -259,10 +260,13 @@ def _interpolate_at_hits(
 
 
 def _lit(scene: o3d.t.geometry.RaycastingScene, normals: np.ndarray, dot: np.ndarray,
-         directions: np.ndarray, t_hit: np.ndarray, toward_light: np.ndarray) -> np.ndarray:
-    """(p,) float32 cos of the angle between each hit's normal, turned to the camera, and
-    the direction toward a distant light (camera frame); 0 where the face is turned from
-    the light, a ray toward it meets the scene, or the pixel hit nothing.
+         directions: np.ndarray, t_hit: np.ndarray, toward_light: np.ndarray
+         ) -> tuple[np.ndarray, np.ndarray]:
+    """Each hit's light from a distant lamp, toward_light (3,) in the camera frame -> (p,)
+    float32 cos of the angle between the normal, turned to the camera, and the lamp's
+    direction, and (p,) cos of its angle with the half-way vector between the lamp's and the
+    camera's directions (Blinn-Phong's); both 0 where the face is turned from the lamp, a ray
+    toward it meets the scene, or the pixel hit nothing.
 
     normals (p, 3) float32 as hit; dot (p,) normal . ray direction; directions (p, 3) the
     pixels' ray directions (depth units); t_hit (p,) their hit distances (inf: none)."""
@@ -275,7 +279,10 @@ def _lit(scene: o3d.t.geometry.RaycastingScene, normals: np.ndarray, dot: np.nda
     rays = np.hstack([starts, np.broadcast_to(light, starts.shape)]).astype(np.float32)
     blocked = np.isfinite(scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy())
     cos_light[lit[blocked]] = 0.0
-    return cos_light
+    half = _unit_rows(light - directions / np.linalg.norm(directions, axis=1, keepdims=True))
+    cos_half = np.where(cos_light > 0.0, np.clip(np.einsum("ij,ij->i", facing, half), 0.0, 1.0),
+                        0.0).astype(np.float32)
+    return cos_light, cos_half
 
 
 def render(
@@ -285,6 +292,8 @@ def render(
     *,
     ambient: float = AMBIENT,
     light_direction: np.ndarray | None = None,
+    specular: float = 0.0,
+    shininess: float = SHININESS,
     background_rgb: np.ndarray = BACKGROUND_RGB,
 ) -> RenderedView:
     """Ray cast `surfaces` through a pinhole camera into an ideal RGB-D view.
@@ -300,6 +309,11 @@ def render(
                      light at the camera, cos_light = cos_incidence and no shadow. A distant
                      light leaves the faces turned from it and the points it cannot reach (hard
                      shadows, a second ray cast) at the ambient share.
+    specular       : a glossy scene's white highlight, 255 specular cos_half^shininess
+                     levels added to every channel (Blinn-Phong: cos_half, of the angle
+                     between the normal and the half-way vector between the light's and the
+                     camera's directions, is cos_incidence with the light at the camera); 0
+                     gives matte surfaces.
     background_rgb : (3,) colour where no ray hits.
     """
     h, w = intrinsics.height, intrinsics.width
@@ -318,7 +332,7 @@ def render(
     # Column by column: several times faster than einsum on (h * w, 3) float32.
     dot = sum(normals[:, axis] * unit_directions[axis] for axis in range(3))
     cos_incidence = np.minimum(np.abs(dot), 1.0)
-    cos_light = cos_incidence if light_direction is None else _lit(
+    cos_light, cos_half = (cos_incidence, cos_incidence) if light_direction is None else _lit(
         scene, normals, dot, rays.numpy().reshape(h * w, 6)[:, 3:], hits["t_hit"],
         invert_pose(world_from_cam)[:3, :3] @ np.asarray(light_direction, dtype=float))
 
@@ -328,6 +342,9 @@ def render(
     for pixels, albedo in albedo_override:
         shade = ambient + (1.0 - ambient) * cos_light[pixels]
         color[pixels] = np.clip(np.rint(albedo * shade[:, None]), 0, 255).astype(np.uint8)
+    if specular > 0.0:
+        gloss = np.where(hit, specular * 255.0 * cos_half.astype(float) ** shininess, 0.0)
+        color = np.clip(np.rint(color + gloss[:, None]), 0, 255).astype(np.uint8)
 
     return RenderedView(
         depth_mm=np.where(hit, hits["t_hit"], 0.0).astype(float).reshape(h, w),

@@ -18,7 +18,7 @@ from softforce_cli.errors import ScenarioError
 from softforce_cli.fem.materials import LAWS
 from softforce_cli.model.effects import Effect, EffectError, parse_effects
 from softforce_cli.sim.camera_pose import look_at
-from softforce_cli.sim.render import AMBIENT
+from softforce_cli.sim.render import AMBIENT, SHININESS
 
 LOAD_KINDS = ("weight", "probe")
 # Bounds that keep a typo from asking for hours of work: a 4096-pixel image side (the D415
@@ -50,7 +50,7 @@ _KEYS = {
         "noise_scale",
     },
     "scene": {"table_z_mm", "robot_rgb", "probe_rgb", "weight_rgb", "table_rgb", "ambient",
-              "light_direction"},
+              "light_direction", "specular", "shininess"},
     "markers": {"publish", "sigma_mm"},
     "frame": {"actuation", "repeat", "load"},
     "load": {"kind", "point_mm", "force_n", "mass_g", "direction", "hook_radius_mm"},
@@ -141,6 +141,9 @@ class SceneSpec:
     # direction toward a distant light in the robot frame (None: the light at the camera)
     ambient: float = AMBIENT
     light_direction: tuple[float, float, float] | None = None
+    # a glossy scene's white highlight (sim.render): its strength and Blinn-Phong exponent
+    specular: float = 0.0
+    shininess: float = SHININESS
 
 
 @dataclass(frozen=True)
@@ -239,6 +242,8 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
             ambient=check.fraction(scene.get("ambient", AMBIENT), "scene.ambient"),
             light_direction=None if "light_direction" not in scene else check.direction(
                 scene["light_direction"], "scene.light_direction"),
+            specular=check.fraction(scene.get("specular", 0.0), "scene.specular"),
+            shininess=check.positive(scene.get("shininess", SHININESS), "scene.shininess"),
         ),
         publish_markers=bool(markers.get("publish", False)),
         marker_sigma_mm=check.non_negative(markers.get("sigma_mm", 0.0), "markers.sigma_mm"),

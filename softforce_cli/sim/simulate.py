@@ -284,7 +284,9 @@ def _frames(
                     states[effective, modulus] = state
             view = _biased(render(_scene(scenario, robot, state), intrinsics,
                                   actual_world_from_cam, ambient=scenario.scene.ambient,
-                                  light_direction=scenario.scene.light_direction),
+                                  light_direction=scenario.scene.light_direction,
+                                  specular=scenario.scene.specular,
+                                  shininess=scenario.scene.shininess),
                            depth_scale(scenario.effects))
             markers_robot = robot.marker_points.positions(state.equilibrium.positions_mm)
             markers_cam = (transform_points(cam_from_world, markers_robot)
