@@ -210,8 +210,9 @@ def segment_robot(
     colour is the robot's paint (robot_paint) is robot; any other is object, unless none of
     its points lies further than settings.rim_mm from a robot point: such a region is the
     robot's own rim in another colour (a depth camera bleeds the nearer depth a pixel or two
-    into the background beside an edge, and a colour image registered a pixel off the depth
-    paints the edge in the background's colour), in neither cloud.
+    into the background beside an edge, a colour image registered a pixel off the depth
+    paints the edge in the background's colour, a marker sticker lies on the skin), in
+    neither cloud.
     pairs (m, 2), optional: the cloud's point pairs at most region_neighbour_mm apart.
     """
     regions = grow_regions(
@@ -232,7 +233,7 @@ def segment_robot(
     robot = cloud.subset(is_robot)
     robot_tree = cKDTree(robot.points_mm)
     is_object = kept & ~is_robot
-    rim_regions = _rims(cloud.points_mm, labels, is_object, robot_regions, robot_tree,
+    rim_regions = _rims(cloud.points_mm, labels, is_object, regions.count, robot_tree,
                         settings.rim_mm)
     is_object[is_object] = ~rim_regions[labels[is_object]]
     return Segmentation(
@@ -245,11 +246,11 @@ def segment_robot(
     )
 
 
-def _rims(points_mm: np.ndarray, labels: np.ndarray, is_object: np.ndarray,
-          robot_regions: np.ndarray, robot_tree: cKDTree, rim_mm: float) -> np.ndarray:
-    """(r,) bool: the regions not robot (robot_regions (r,)) none of whose points (n, 3),
-    labelled (n,), is_object (n,), lies further than rim_mm from robot_tree's points."""
-    rims = np.zeros(len(robot_regions), dtype=bool)
+def _rims(points_mm: np.ndarray, labels: np.ndarray, is_object: np.ndarray, count: int,
+          robot_tree: cKDTree, rim_mm: float) -> np.ndarray:
+    """(count,) bool: the regions of objects none of whose points lies further than rim_mm
+    from robot_tree's points; points_mm (n, 3), their region labels (n,), is_object (n,)."""
+    rims = np.zeros(count, dtype=bool)
     if rim_mm == 0.0 or robot_tree.n == 0 or not is_object.any():
         return rims
     gaps, _ = robot_tree.query(points_mm[is_object], distance_upper_bound=rim_mm)
