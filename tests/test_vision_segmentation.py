@@ -171,8 +171,8 @@ def test_dark_paints_side_by_side_are_split_by_their_direction():
 
 @pytest.mark.parametrize("key, value", [("robot_hue_deg", 90.0), ("region_hue_deg", -1.0),
                                         ("robot_min_shade", 1.5), ("robot_max_shade", 0.9),
-                                        ("robot_max_shade", 20.0)])
-def test_hue_and_shade_settings_are_checked(key, value):
+                                        ("robot_max_shade", 20.0), ("rim_mm", -1.0)])
+def test_hue_shade_and_rim_settings_are_checked(key, value):
     with pytest.raises(ValueError, match=key):
         VisionSettings(**{key: value})
 

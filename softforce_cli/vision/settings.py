@@ -231,16 +231,12 @@ class VisionSettings:
                            "region_hue_deg", "rim_mm")
             if name not in may_be_zero and not value > 0:
                 raise ValueError(f"vision setting {name} must be positive, got {value}")
+            if name in may_be_zero and not value >= 0:
+                raise ValueError(f"vision setting {name} must be >= 0, got {value}")
             # a length beyond the scene (or infinite) sizes arrays the machine cannot hold
             if name.endswith("_mm") and not value <= MAX_LENGTH_MM:
                 raise ValueError(f"vision setting {name} must be at most {MAX_LENGTH_MM:g} mm, "
                                  f"got {value}")
-        if self.occluded_tip_mm < 0:
-            raise ValueError("vision setting occluded_tip_mm must be >= 0 (0 turns it off), "
-                             f"got {self.occluded_tip_mm}")
-        if self.contact_min_neighbours < 0 or self.outlier_min_neighbours < 0:
-            raise ValueError("vision settings contact_min_neighbours and outlier_min_neighbours "
-                             "must be >= 0")
         if self.decimation not in range(MAX_DECIMATION + 1):
             raise ValueError(f"vision setting decimation must be a whole number from 0 "
                              f"(automatic) to {MAX_DECIMATION}, got {self.decimation}")
