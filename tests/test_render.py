@@ -36,6 +36,7 @@ from softforce_cli.sim.depth_noise import (
 from softforce_cli.sim.render import (
     BACKGROUND_RGB,
     SceneSurface,
+    Spots,
     render,
     table_surface,
 )
@@ -219,6 +220,23 @@ def test_a_glossy_scene_adds_a_white_highlight_where_the_light_mirrors_into_the_
     # the normal (0, 0, -1) is 30 degrees from the half-way vector at the image centre
     assert lit.color[240, 320, 0] == pytest.approx(
         200 * (0.4 + 0.6 * 0.5) + 127.5 * np.cos(np.radians(30)) ** 40, abs=1)
+
+
+def test_a_spot_painted_at_rest_moves_with_the_surface():
+    """A marker sticker is placed on the rest shape: a 10 mm spot on a plane 500 mm away
+    covers the pixels within 615 * 10 / 500 = 12.3 px of its centre; moved 20 mm along x
+    with the plane (the rest shape unchanged), it covers those around the moved centre."""
+    plane = quad([0, 0, 500.0], [1, 0, 0], [0, -1, 0], 200.0, color=(40, 90, 210))
+    spots = Spots(plane.vertices_mm, np.array([[0.0, 0.0, 500.0]]), 10.0,
+                  np.array([40, 200, 60]))
+    v, u = np.mgrid[0:480, 0:640]
+    for shift in (0.0, 20.0):
+        moved = SceneSurface("skin", plane.vertices_mm + np.array([shift, 0.0, 0.0]), plane.faces,
+                             plane.color_rgb, spots=spots)
+        view = render([moved], VGA, CAMERA_AT_ORIGIN, ambient=1.0)
+        radius_px = np.hypot(u - 320 - 615.0 * shift / 500.0, v - 240)
+        green = view.color[:, :, 1] == 200
+        assert green[radius_px < 11.8].all() and not green[radius_px > 12.8].any()
 
 
 def test_vertex_colours_are_interpolated():

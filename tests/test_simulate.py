@@ -144,6 +144,8 @@ def test_weights_make_the_apex_sink_monotonically():
         ("[camera]", "[scene]\nlight_direction = [0, 0, 0]\n[camera]",
          "scene.light_direction must not be zero"),
         ("[camera]", "[scene]\nspecular = 2\n[camera]", "scene.specular must be in [0, 1]"),
+        ("publish = true", "publish = true\nsticker_rgb = [300, 0, 0]",
+         "markers.sticker_rgb must be 3 integers in 0..255"),
     ],
 )
 def test_bad_scenarios_give_one_clear_line(tmp_path, old, new, message):

@@ -30,6 +30,31 @@ SHADOW_OFFSET_MM = 0.05  # a shadow ray's start off its surface: above float32 r
 
 
 @dataclass(frozen=True, eq=False)
+class Spots:
+    """Round spots painted on a deforming surface (marker stickers on a robot's skin), placed
+    in its rest shape, so that each stays on the same patch of skin as the body deforms.
+
+    rest_vertices_mm : (n, 3) float64 the surface's vertices at rest (its material points).
+    centres_mm       : (k, 3) float64 the spots' centres at rest.
+    radius_mm        : their radius, measured at rest.
+    color_rgb        : (3,) uint8 their colour.
+    """
+
+    rest_vertices_mm: np.ndarray
+    centres_mm: np.ndarray
+    radius_mm: float
+    color_rgb: np.ndarray
+
+    def painted(self, rest_points_mm: np.ndarray) -> np.ndarray:
+        """(m,) bool: which rest points (m, 3) lie on a spot."""
+        centres = np.asarray(self.centres_mm, dtype=float).reshape(-1, 3)
+        if not len(centres):
+            return np.zeros(len(rest_points_mm), dtype=bool)
+        gaps = np.linalg.norm(rest_points_mm[:, None, :] - centres[None], axis=2)
+        return gaps.min(axis=1) < self.radius_mm
+
+
+@dataclass(frozen=True, eq=False)
 class SceneSurface:
     """A triangle surface to render, in the world (robot) frame.
 
@@ -42,6 +67,7 @@ class SceneSurface:
                         replaces color_rgb where given.
     smooth            : interpolate area-weighted vertex normals across faces (smooth shading
                         and incidence) instead of using the flat face normal.
+    spots             : optional Spots painted over those colours (rest_vertices_mm (n, 3)).
     """
 
     name: str
@@ -50,6 +76,7 @@ class SceneSurface:
     color_rgb: np.ndarray
     vertex_colors_rgb: np.ndarray | None = None
     smooth: bool = False
+    spots: Spots | None = None
 
     def __post_init__(self) -> None:
         vertices = np.asarray(self.vertices_mm, dtype=float)
@@ -236,16 +263,16 @@ def _interpolate_at_hits(
     hits: dict[str, np.ndarray],
     normals: np.ndarray,
 ) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Smooth normals (written into `normals`, (p, 3) float32) and per-vertex colours of the
-    surfaces that ask for them, at the pixels they cover.
+    """Smooth normals (written into `normals`, (p, 3) float32) and per-vertex colours and
+    spots of the surfaces that ask for them, at the pixels they cover.
 
     surface (p,) surface index per pixel; hits: the ray caster's flat outputs.
-    -> [(pixels (m,) int, albedo (m, 3) float32)] for surfaces with vertex colours.
+    -> [(pixels (m,) int, albedo (m, 3) float32)] for surfaces with vertex colours or spots.
     """
     albedo_override = []
     for i in vertices_cam:
         s = surfaces[i]
-        if not s.smooth and s.vertex_colors_rgb is None:
+        if not s.smooth and s.vertex_colors_rgb is None and s.spots is None:
             continue
         pixels = np.flatnonzero(surface == i)
         corners = s.faces.take(hits["primitive_ids"].take(pixels), axis=0)
@@ -253,9 +280,15 @@ def _interpolate_at_hits(
         if s.smooth:
             vertex_normals = smooth_vertex_normals(vertices_cam[i], s.faces).astype(np.float32)
             normals[pixels] = _unit_rows(_interpolate(vertex_normals, corners, uv))
-        if s.vertex_colors_rgb is not None:
-            albedo = _interpolate(s.vertex_colors_rgb.astype(np.float32), corners, uv)
-            albedo_override.append((pixels, albedo))
+        if s.vertex_colors_rgb is None and s.spots is None:
+            continue
+        albedo = (np.tile(s.color_rgb.astype(np.float32), (len(pixels), 1))
+                  if s.vertex_colors_rgb is None
+                  else _interpolate(s.vertex_colors_rgb.astype(np.float32), corners, uv))
+        if s.spots is not None:
+            painted = s.spots.painted(_interpolate(s.spots.rest_vertices_mm, corners, uv))
+            albedo[painted] = s.spots.color_rgb
+        albedo_override.append((pixels, albedo))
     return albedo_override
 
 

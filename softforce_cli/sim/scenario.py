@@ -51,7 +51,7 @@ _KEYS = {
     },
     "scene": {"table_z_mm", "robot_rgb", "probe_rgb", "weight_rgb", "table_rgb", "ambient",
               "light_direction", "specular", "shininess"},
-    "markers": {"publish", "sigma_mm"},
+    "markers": {"publish", "sigma_mm", "sticker_rgb", "sticker_radius_mm"},
     "frame": {"actuation", "repeat", "load"},
     "load": {"kind", "point_mm", "force_n", "mass_g", "direction", "hook_radius_mm"},
 }
@@ -59,6 +59,8 @@ _KEYS = {
 # material within this radius of its point. A force at one material point is singular on a
 # continuum (the locking-free truth's Newton solve does not converge under 1 N there).
 HOOK_RADIUS_MM = 3.0
+# A marker sticker's radius: a 8 mm dot, a few pixels across at 0.5 m
+STICKER_RADIUS_MM = 4.0
 GRAVITY_N_PER_G = 9.81e-3
 # the D415's largest depth stream (width, height): the sensor model renders depth there
 D415_DEPTH_SIZE = (1280, 720)
@@ -161,6 +163,9 @@ class Scenario:
     publish_markers: bool
     marker_sigma_mm: float
     frames: tuple[FrameSpec, ...]
+    # the markers drawn on the robot's skin as round stickers of this colour (None: unseen)
+    sticker_rgb: tuple[int, int, int] | None = None
+    sticker_radius_mm: float = STICKER_RADIUS_MM
     # effects concealed in the truth (model.effects; docs/effects.md), targets checked
     # against the truth robot by sim.simulate.prepare_simulation
     effects: tuple[Effect, ...] = ()
@@ -247,6 +252,10 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
         ),
         publish_markers=bool(markers.get("publish", False)),
         marker_sigma_mm=check.non_negative(markers.get("sigma_mm", 0.0), "markers.sigma_mm"),
+        sticker_rgb=None if "sticker_rgb" not in markers else check.rgb(
+            markers["sticker_rgb"], "markers.sticker_rgb"),
+        sticker_radius_mm=check.positive(markers.get("sticker_radius_mm", STICKER_RADIUS_MM),
+                                         "markers.sticker_radius_mm"),
         frames=tuple(_frame(frame, i, check) for i, frame in enumerate(frames)),
         effects=effects,
     )

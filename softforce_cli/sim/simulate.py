@@ -48,7 +48,7 @@ from softforce_cli.sim.camera_pose import invert_pose, look_at, transform_points
 from softforce_cli.sim.depth_noise import D415Noise, apply_d415
 from softforce_cli.sim.ground_truth import TruthState, solve_frame, truth_robot
 from softforce_cli.sim.props import probe_surface, weight_surface
-from softforce_cli.sim.render import RenderedView, SceneSurface, render, table_surface
+from softforce_cli.sim.render import RenderedView, SceneSurface, Spots, render, table_surface
 from softforce_cli.sim.scenario import FrameSpec, Scenario, load_scenario
 
 # The table is a square this big around the robot, large enough to fill the D415's view.
@@ -327,6 +327,9 @@ def _biased(view: RenderedView, scale: float) -> RenderedView:
 
 def _scene(scenario: Scenario, robot: Robot, state: TruthState) -> list[SceneSurface]:
     colours = scenario.scene
+    stickers = None if scenario.sticker_rgb is None else Spots(
+        robot.rest_nodes_mm, robot.marker_points.positions(robot.rest_nodes_mm),
+        scenario.sticker_radius_mm, np.array(scenario.sticker_rgb))
     surfaces = [
         SceneSurface(
             "robot",
@@ -334,6 +337,7 @@ def _scene(scenario: Scenario, robot: Robot, state: TruthState) -> list[SceneSur
             robot.mesh.surface_faces,
             np.array(colours.robot_rgb),
             smooth=True,
+            spots=stickers,
         ),
         table_surface(colours.table_z_mm, TABLE_HALF_SIZE_MM, np.array(colours.table_rgb)),
     ]
