@@ -23,6 +23,7 @@ from softforce_cli.calibration.rigid import RigidTransform
 from softforce_cli.camera.intrinsics import CameraIntrinsics
 from softforce_cli.vision.contacts import DetectedContacts, detect_contacts, nearest_features
 from softforce_cli.vision.decimation import decimate_frame
+from softforce_cli.vision.depth_edges import bled_pixels
 from softforce_cli.vision.feature_matching import FeatureMatches, match_features
 from softforce_cli.vision.filters import (
     crop_box_from_bounds,
@@ -140,10 +141,14 @@ def observe_frame(
     settings = settings_for_frame(settings, intrinsics.fx,
                                   robot_distance_mm(bounds, robot_from_camera))
     box = crop_box_from_bounds(bounds, settings.crop_margin_mm)
-    if settings.decimation > 1:  # only the crop box's pixels: a fifth of the frame or less
-        depth_mm, color, intrinsics = decimate_frame(
-            depth_mm, color, intrinsics, settings.decimation,
-            box_pixels(box, intrinsics, robot_from_camera))
+    window = box_pixels(box, intrinsics, robot_from_camera)  # a fifth of the frame or less
+    if settings.edge_bleed_px > 0:
+        bled = bled_pixels(depth_mm, color, settings.edge_bleed_px, settings.edge_jump_mm,
+                           settings.point_colour_threshold, window)
+        depth_mm = np.where(bled, 0, depth_mm).astype(depth_mm.dtype)
+    if settings.decimation > 1:
+        depth_mm, color, intrinsics = decimate_frame(depth_mm, color, intrinsics,
+                                                     settings.decimation, window)
     decimation_ms = clock.lap("decimation")
     plane = table_plane
     if plane is None:

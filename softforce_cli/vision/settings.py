@@ -12,6 +12,8 @@ MAX_LENGTH_MM = 1500.0
 # The brightest shade of the learned robot colour robot_max_shade may allow: 255 levels in
 # each channel are at most 10 times a colour learned at a tenth of them.
 MAX_SHADE = 10.0
+# The widest bleed edge_bleed_px may look for: a stereo window's half width at most
+MAX_EDGE_BLEED_PX = 8
 
 
 @dataclass(frozen=True)
@@ -94,6 +96,15 @@ class VisionSettings:
                              by its direction (near black, a colour's direction is noise).
     robot_max_shade        : 2.0, the brightest (the colour is learned on the first frame).
 
+    edge_bleed_px          : 2, within this many pixels of a depth edge deeper than
+                             edge_jump_mm, a pixel on the near side whose colour is the far
+                             side's (by point_colour_threshold) carries a depth that bled or a
+                             colour registered off it, and is dropped before the cloud is made
+                             (vision.depth_edges): two pixels of either turned the probe's
+                             outline into the robot's and gave contacts up the probe
+                             (docs/vision.md, "Edges"). 0 turns it off.
+    edge_jump_mm           : 10.0, the depth step that makes an edge: over 4 sigma of the
+                             D415's noise at 0.6 m, under a probe's rod above the skin.
     rim_mm                 : 4.0, a region not of the robot's colour none of whose points lies
                              further than this from a robot point is the robot's own rim seen
                              in another colour, and no object: a depth camera bleeds the nearer
@@ -208,6 +219,8 @@ class VisionSettings:
     robot_min_shade: float = 0.25
     robot_max_shade: float = 2.0
     rim_mm: float = 4.0
+    edge_bleed_px: int = 2
+    edge_jump_mm: float = 10.0
     contact_radius_mm: float = 4.0
     contact_min_neighbours: int = 3
     cluster_tolerance_mm: float = 5.0
@@ -228,7 +241,7 @@ class VisionSettings:
         for name, value in vars(self).items():
             may_be_zero = ("contact_min_neighbours", "outlier_min_neighbours", "scale_to_camera",
                            "match_mean_mm", "occluded_tip_mm", "decimation", "robot_hue_deg",
-                           "region_hue_deg", "rim_mm")
+                           "region_hue_deg", "rim_mm", "edge_bleed_px")
             if name not in may_be_zero and not value > 0:
                 raise ValueError(f"vision setting {name} must be positive, got {value}")
             if name in may_be_zero and not value >= 0:
@@ -237,6 +250,9 @@ class VisionSettings:
             if name.endswith("_mm") and not value <= MAX_LENGTH_MM:
                 raise ValueError(f"vision setting {name} must be at most {MAX_LENGTH_MM:g} mm, "
                                  f"got {value}")
+        if self.edge_bleed_px not in range(MAX_EDGE_BLEED_PX + 1):
+            raise ValueError(f"vision setting edge_bleed_px must be a whole number from 0 "
+                             f"(off) to {MAX_EDGE_BLEED_PX}, got {self.edge_bleed_px}")
         if self.decimation not in range(MAX_DECIMATION + 1):
             raise ValueError(f"vision setting decimation must be a whole number from 0 "
                              f"(automatic) to {MAX_DECIMATION}, got {self.decimation}")
