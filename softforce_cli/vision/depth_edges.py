@@ -38,10 +38,10 @@ def bled_pixels(depth_mm: np.ndarray, color: np.ndarray, reach_px: int, jump_mm:
                               np.minimum)
     farthest = _window_extreme(patch, reach_px, np.maximum)
     rows, columns = np.nonzero(valid & (farthest.astype(np.int32) - nearest > jump_mm))
-    depth = patch.astype(float)
-    colors = color[top:top + depth.shape[0], left:left + depth.shape[1]].astype(float)
     if not len(rows):
         return bled
+    depth = patch.astype(float)
+    colors = color[top:top + depth.shape[0], left:left + depth.shape[1]].astype(float)
     dy, dx = np.mgrid[-reach_px:reach_px + 1, -reach_px:reach_px + 1].reshape(2, -1)
     others = (dy != 0) | (dx != 0)
     around_rows = np.clip(rows[:, None] + dy[others], 0, depth.shape[0] - 1)
@@ -62,7 +62,7 @@ def bled_pixels(depth_mm: np.ndarray, color: np.ndarray, reach_px: int, jump_mm:
     to_own = np.linalg.norm(own - side_mean(own_side), axis=1)
     dropped = seen & (to_other + margin < to_own)
     bled[rows[dropped] + top, columns[dropped] + left] = True
-    if window is not None:  # the grown border's pixels belong to other calls
+    if window is not None:  # the window's pixels only, not those of its grown border
         outside = np.ones((h, w), dtype=bool)
         outside[v0:v1, u0:u1] = False
         bled[outside] = False
