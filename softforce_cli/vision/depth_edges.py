@@ -37,7 +37,11 @@ def bled_pixels(depth_mm: np.ndarray, color: np.ndarray, reach_px: int, jump_mm:
     nearest = _window_extreme(np.where(valid, patch, np.iinfo(np.uint16).max), reach_px,
                               np.minimum)
     farthest = _window_extreme(patch, reach_px, np.maximum)
-    rows, columns = np.nonzero(valid & (farthest.astype(np.int32) - nearest > jump_mm))
+    edge = valid & (farthest.astype(np.int32) - nearest > jump_mm)
+    # the window's pixels only, not those of its grown border
+    edge[:v0 - top] = edge[v1 - top:] = False
+    edge[:, :u0 - left] = edge[:, u1 - left:] = False
+    rows, columns = np.nonzero(edge)
     if not len(rows):
         return bled
     depth = patch.astype(float)
@@ -62,10 +66,6 @@ def bled_pixels(depth_mm: np.ndarray, color: np.ndarray, reach_px: int, jump_mm:
     to_own = np.linalg.norm(own - side_mean(own_side), axis=1)
     dropped = seen & (to_other + margin < to_own)
     bled[rows[dropped] + top, columns[dropped] + left] = True
-    if window is not None:  # the window's pixels only, not those of its grown border
-        outside = np.ones((h, w), dtype=bool)
-        outside[v0:v1, u0:u1] = False
-        bled[outside] = False
     return bled
 
 

@@ -145,7 +145,9 @@ def observe_frame(
     if settings.edge_bleed_px > 0:
         bled = bled_pixels(depth_mm, color, settings.edge_bleed_px, settings.edge_jump_mm,
                            settings.point_colour_threshold, window)
-        depth_mm = np.where(bled, 0, depth_mm).astype(depth_mm.dtype)
+        if bled.any():  # the frame's own depth is left as it was
+            depth_mm = depth_mm.copy()
+            depth_mm[bled] = 0
     if settings.decimation > 1:
         depth_mm, color, intrinsics = decimate_frame(depth_mm, color, intrinsics,
                                                      settings.decimation, window)
