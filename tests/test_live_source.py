@@ -9,6 +9,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,12 +18,19 @@ from typer.testing import CliRunner
 
 from softforce_cli.camera.frame import RgbdFrame
 from softforce_cli.camera.intrinsics import CameraIntrinsics
+from softforce_cli.camera.lens import LensDistortion
 from softforce_cli.camera.live_source import QUEUE_FRAMES, LiveSource, record_live
 from softforce_cli.camera.realsense import CaptureProgress, rgbd_frames_from_framesets
+from softforce_cli.camera.rectification import rectified
 from softforce_cli.cli import record_commands
 from softforce_cli.errors import CameraError, OutputExistsError, RecordingError
 from softforce_cli.io import mcap_writer
-from softforce_cli.io.mcap_reader import iter_frames
+from softforce_cli.io.mcap_reader import (
+    frames_from_messages,
+    iter_frames,
+    open_recording,
+    recording_messages,
+)
 from tests.realsense_fakes import FPS, PERIOD_MS, T0_MS, SoftwareCamera
 
 T0_NS = 1_700_000_000_000_000_000
@@ -259,6 +267,24 @@ def test_no_frame_writes_nothing_and_no_recording_only_serves_frames(tmp_path):
     assert index_of(last) == 3 and source.stats.captured == 4 and source.stats.recorded == 0
     with pytest.raises(RuntimeError, match="start the LiveSource first"):
         next(LiveSource(PacedCamera(1)).latest())
+
+
+def test_a_lens_is_rectified_for_the_consumer_and_recorded_as_captured(tmp_path):
+    """A camera whose lens distorts (a D455's colour stream): the consumer gets the pinhole
+    image (camera.rectification), the recording the camera's own frames and lens."""
+    lens = LensDistortion("plumb_bob", (-0.2, 0.05, 0.0, 0.0, 0.0))
+    camera = PacedCamera(3, replace(SMALL_K, distortion=lens))
+    with LiveSource(camera, record_to=tmp_path / "lens.mcap") as source:
+        served = list(source.latest())
+    assert served and all(frame.intrinsics.distortion is None for frame in served)
+    with open_recording(tmp_path / "lens.mcap") as recording:
+        kept = list(frames_from_messages(tmp_path / "lens.mcap",
+                                         recording_messages(recording, {})))
+    assert [frame.intrinsics.distortion for frame in kept] == [lens] * 3
+    for frame in served:
+        raw = kept[index_of(frame)]
+        np.testing.assert_array_equal(frame.depth_mm, rectified(raw).depth_mm)
+        assert not np.array_equal(frame.depth_mm, raw.depth_mm)
 
 
 def test_record_live_reports_an_interrupt_from_the_camera(tmp_path):

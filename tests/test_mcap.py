@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import signal
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,8 @@ from typer.testing import CliRunner
 from softforce_cli import __version__
 from softforce_cli.camera.frame import Actuation, Markers, RgbdFrame
 from softforce_cli.camera.intrinsics import CameraIntrinsics
+from softforce_cli.camera.lens import LensDistortion
+from softforce_cli.camera.rectification import rectified
 from softforce_cli.cli import record_commands
 from softforce_cli.errors import OutputExistsError, RecordingError
 from softforce_cli.io import recording_format as fmt
@@ -319,12 +322,14 @@ def test_file_cut_before_first_frame_is_an_error(recording, tmp_path):
         list(iter_frames(cut))
 
 
-def _with_distortion(info: bytes, distortion: tuple[float, ...]) -> bytes:
+def _with_distortion(info: bytes, distortion: tuple[float, ...],
+                     model: str = "plumb_bob") -> bytes:
     if not distortion:
         return info
     message = CameraCalibration.FromString(info)
     del message.D[:]
     message.D.extend(distortion)
+    message.distortion_model = model
     return message.SerializeToString()
 
 
@@ -339,6 +344,7 @@ def write_custom(
     color_encoding="rgb8",
     depth_encoding="16UC1",
     distortion=(),
+    distortion_model="plumb_bob",
     actuation_on_change=False,
 ) -> None:
     """A recording written with the bare mcap writer: extra topics, missing or odd ones,
@@ -385,7 +391,7 @@ def write_custom(
                 fmt.COLOR_TOPIC: color,
                 fmt.DEPTH_TOPIC: depth_data,
                 fmt.CAMERA_INFO_TOPIC: _with_distortion(fmt.encode_camera_info(
-                    frame.intrinsics, t), distortion),
+                    frame.intrinsics, t), distortion, distortion_model),
                 fmt.ACTUATION_TOPIC: None if frame.actuation is None
                 else fmt.encode_actuation(frame.actuation),
                 fmt.MARKERS_TOPIC: fmt.encode_markers(frame.markers),
@@ -439,13 +445,24 @@ def test_actuation_holds_until_it_changes(tmp_path):
     assert read_summary(path).frame_count == 5
 
 
-def test_lens_distortion_is_said_once_and_not_applied(tmp_path):
-    """camera_info with distortion coefficients (another tool's, a lens that distorts):
-    softforce reads through K alone and says so once per recording."""
+def test_lens_distortion_is_applied_or_said_once(tmp_path):
+    """camera_info with distortion coefficients (another tool's, a lens that distorts): a
+    model softforce knows is rectified away (tests/test_lens.py), another is said once per
+    recording and the images read through K alone."""
     frames = make_frames(3)
-    path = tmp_path / "distorted.mcap"
-    write_custom(path, frames, distortion=(0.1, -0.05, 0.0, 0.0, 0.0))
-    with pytest.warns(RecordingWarning, match="distortion") as caught:
+    lens = (0.1, -0.05, 0.0, 0.0, 0.0)
+    write_custom(tmp_path / "distorted.mcap", frames, distortion=lens)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RecordingWarning)
+        got = list(iter_frames(tmp_path / "distorted.mcap"))
+    for g, w in zip(got, frames, strict=True):
+        through = replace(w, intrinsics=replace(
+            w.intrinsics, distortion=LensDistortion("plumb_bob", lens)))
+        assert_same_frame(g, rectified(through))
+    assert not np.array_equal(got[0].depth_mm, frames[0].depth_mm)
+    path = tmp_path / "unknown.mcap"
+    write_custom(path, frames, distortion=(0.1,) * 6, distortion_model="fisheye62")
+    with pytest.warns(RecordingWarning, match="fisheye62") as caught:
         got = list(iter_frames(path))
     assert sum("distortion" in str(w.message) for w in caught) == 1
     for g, w in zip(got, frames, strict=True):

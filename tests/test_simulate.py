@@ -11,7 +11,13 @@ import numpy as np
 import pytest
 
 from softforce_cli.errors import ScenarioError
-from softforce_cli.io.mcap_reader import iter_frames, read_summary
+from softforce_cli.io.mcap_reader import (
+    frames_from_messages,
+    iter_frames,
+    open_recording,
+    read_summary,
+    recording_messages,
+)
 from softforce_cli.model.robot import load_robot, with_element
 from softforce_cli.sim.ground_truth import hook_region
 from softforce_cli.sim.scenario import HOOK_RADIUS_MM, load_scenario
@@ -85,8 +91,47 @@ def test_noise_free_depth_agrees_with_the_truth_geometry(tmp_path):
         u, v = round(k.fx * x / z + k.cx), round(k.fy * y / z + k.cy)
         assert abs(int(recorded.depth_mm[v, u]) - z) <= 1.0  # 1 mm quantisation
         # the robot is blue there (its colour is distinct from the table and the probes)
-        r, g, b = recorded.color[v, u].astype(int)
-        assert b > r + 60 and b > g + 40
+        assert blue(recorded.color[v : v + 1, u : u + 1])[0, 0]
+
+
+def test_a_lens_that_distorts_is_rendered_and_read_back_rectified(tmp_path):
+    """A scenario's [camera] distortion renders each pixel along the ray the lens maps it to
+    and writes the lens in camera_info; read back, the frames are the pinhole camera's
+    (tests/test_lens.py for the models): the same scene as without the lens, but for pixels
+    by the edges (nearest-pixel resampling) and beyond the raw image's border."""
+    pinhole = scenario_prefix("markers", STATES, tmp_path, noise=False)
+    text = pinhole.read_text().replace(
+        "[camera]", '[camera]\nlook_at_mm = [200.0, 140.0, 40.0]\ndistortion_model = '
+        '"plumb_bob"\ndistortion = [-0.12, 0.04, 0.0008, -0.0006]')
+    lens = tmp_path / "lens.toml"
+    lens.write_text(text)
+    pinhole.write_text(text.replace("distortion = [", "distortion = [0, 0, 0, 0] # ["))
+    lensed = simulate(lens, tmp_path / "lens.mcap", states=TRUTH_STATES["markers"])
+    plain = simulate(pinhole, tmp_path / "pinhole.mcap", states=TRUTH_STATES["markers"])
+    assert read_summary(lensed.recording).intrinsics.distortion.coefficients == (
+        -0.12, 0.04, 0.0008, -0.0006, 0.0)
+    truth = json.loads(lensed.truth.read_text())["camera"]["intrinsics"]["distortion"]
+    assert truth == {"model": "plumb_bob", "coefficients": [-0.12, 0.04, 0.0008, -0.0006, 0.0]}
+    for got, want in zip(iter_frames(lensed.recording), iter_frames(plain.recording),
+                         strict=True):
+        assert got.intrinsics == want.intrinsics
+        same = np.abs(got.depth_mm.astype(int) - want.depth_mm.astype(int)) <= 1
+        robot = blue(want.color)  # its slopes change by more than 1 mm in half a pixel
+        assert same.mean() > 0.99 and same[robot].mean() > 0.95
+    # as recorded, the lens moves the robot by pixels: most of its depths change
+    with open_recording(lensed.recording) as recording:
+        raw = next(frames_from_messages(lensed.recording, recording_messages(recording, {})))
+    want = next(iter_frames(plain.recording))
+    assert raw.intrinsics.distortion is not None
+    moved = np.abs(raw.depth_mm.astype(int) - want.depth_mm.astype(int)) > 1
+    robot = blue(want.color)
+    assert moved[robot].mean() > 0.3  # 0.60: against 0.03 rectified
+
+
+def blue(color: np.ndarray) -> np.ndarray:
+    """(h, w) where an image (h, w, 3) shows the sample robot's blue."""
+    r, g, b = np.moveaxis(color.astype(int), -1, 0)
+    return (b > r + 60) & (b > g + 40)
 
 
 def test_markers_are_observed_with_the_requested_noise():
@@ -146,6 +191,11 @@ def test_weights_make_the_apex_sink_monotonically():
         ("[camera]", "[scene]\nspecular = 2\n[camera]", "scene.specular must be in [0, 1]"),
         ("publish = true", "publish = true\nsticker_rgb = [300, 0, 0]",
          "markers.sticker_rgb must be 3 integers in 0..255"),
+        ("[camera]", '[camera]\ndistortion_model = "fisheye62"\ndistortion = [0.1]',
+         "camera.distortion: distortion model 'fisheye62' is not one softforce knows"),
+        ("[camera]", "[camera]\ndistortion = [0.1, 0, 0, 0, 0, 0.2]",
+         "camera.distortion: distortion model plumb_bob takes 5 coefficients"),
+        ("[camera]", '[camera]\ndistortion = "strong"', "camera.distortion must be an array"),
     ],
 )
 def test_bad_scenarios_give_one_clear_line(tmp_path, old, new, message):

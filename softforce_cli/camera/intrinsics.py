@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from softforce_cli.camera.lens import LensDistortion
+
 
 @dataclass(frozen=True)
 class CameraIntrinsics:
@@ -14,6 +16,9 @@ class CameraIntrinsics:
     width, height : image size in pixels.
     fx, fy        : focal lengths in pixels.
     cx, cy        : principal point in pixels (pixel centres at integer coordinates).
+    distortion    : the lens' distortion (camera.lens), None for a pinhole image. The vision
+                    stage takes pinhole images only: a frame with distortion is rectified
+                    first (camera.rectification).
     """
 
     width: int
@@ -22,6 +27,7 @@ class CameraIntrinsics:
     fy: float
     cx: float
     cy: float
+    distortion: LensDistortion | None = None
 
     @property
     def matrix(self) -> np.ndarray:

@@ -28,6 +28,7 @@ from pathlib import Path
 from types import TracebackType
 
 from softforce_cli.camera.frame import RgbdFrame
+from softforce_cli.camera.rectification import rectified
 from softforce_cli.io.atomic import check_writable
 from softforce_cli.io.mcap_writer import RecordingWriter
 
@@ -161,7 +162,9 @@ class LiveSource:
 
         Ends when the camera iterator has ended and its last frame was yielded. An error of the
         capture or writer thread is raised at the next request after it happened. Waits longer
-        while the writer lags far behind (see HOLD_FRACTION).
+        while the writer lags far behind (see HOLD_FRACTION). Frames through a distorting lens
+        come rectified (camera.rectification); the recording keeps them as captured, with
+        the lens in its camera_info.
         """
         self._check_running()
         seen = 0  # frames captured up to the one last yielded
@@ -182,7 +185,7 @@ class LiveSource:
                 self._skipped += self._captured - seen - 1
                 self._delivered += 1
                 seen = self._captured
-            yield frame
+            yield rectified(frame)
 
     def wait(self) -> None:
         """Block until the camera iterator ends (every frame is then captured, not necessarily

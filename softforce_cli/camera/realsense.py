@@ -18,6 +18,7 @@ import pyrealsense2 as rs
 
 from softforce_cli.camera.frame import RgbdFrame
 from softforce_cli.camera.intrinsics import CameraIntrinsics
+from softforce_cli.camera.lens import LensDistortion, LensModelError
 from softforce_cli.errors import CameraError, RecordingError
 
 NO_DEVICE_MESSAGE = "no RealSense device found; connect one or use --from FILE"
@@ -209,8 +210,17 @@ def rgb_from_color_data(data: np.ndarray, color_format: rs.format, where: str) -
 
 
 def intrinsics_from_rs(intrinsics: rs.intrinsics) -> CameraIntrinsics:
-    """pyrealsense2 intrinsics -> pinhole CameraIntrinsics (the distortion model is dropped:
-    RealSense colour streams report zero coefficients)."""
+    """pyrealsense2 intrinsics -> CameraIntrinsics with the stream's lens distortion
+    (camera.lens; None when its coefficients are all 0, as a D415's or D435's colour stream
+    reports). RecordingError for a model softforce does not know (ftheta: the T265's)."""
+    try:
+        # "none" with coefficients would be an odd stream: its coefficients are read as
+        # OpenCV's
+        model = intrinsics.model.name
+        lens = LensDistortion.from_camera_info("plumb_bob" if model == "none" else model,
+                                               intrinsics.coeffs)
+    except LensModelError as error:
+        raise RecordingError(f"the colour stream's lens: {error}") from error
     return CameraIntrinsics(
         width=int(intrinsics.width),
         height=int(intrinsics.height),
@@ -218,6 +228,7 @@ def intrinsics_from_rs(intrinsics: rs.intrinsics) -> CameraIntrinsics:
         fy=float(intrinsics.fy),
         cx=float(intrinsics.ppx),
         cy=float(intrinsics.ppy),
+        distortion=lens,
     )
 
 

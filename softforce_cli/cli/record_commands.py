@@ -177,6 +177,9 @@ def _summary_table(summary: RecordingSummary) -> Table:
     )
     table.add_row("resolution", f"{k.width}x{k.height}")
     table.add_row("intrinsics", f"fx {k.fx:.3f}  fy {k.fy:.3f}  cx {k.cx:.3f}  cy {k.cy:.3f}")
+    if k.distortion is not None:
+        values = " ".join(f"{c:.6g}" for c in k.distortion.coefficients)
+        table.add_row("lens", f"{k.distortion.model} {values} (rectified when read)")
     if summary.actuation_names is not None:
         unit = "mm" if summary.actuation_control == "displacement" else "N"
         names = ", ".join(summary.actuation_names)

@@ -24,6 +24,7 @@ from mcap.writer import MCAP0_MAGIC
 
 from softforce_cli.camera.frame import Actuation, RgbdFrame
 from softforce_cli.camera.intrinsics import CameraIntrinsics
+from softforce_cli.camera.rectification import rectified
 from softforce_cli.errors import RecordingError
 from softforce_cli.io import recording_format as fmt
 from softforce_cli.io.mcap_chunks import (
@@ -103,6 +104,8 @@ class RecordingSummary:
             "end_time_ns": self.end_time_ns,
             "resolution": {"width": k.width, "height": k.height},
             "intrinsics": {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy},
+            "distortion": None if k.distortion is None else {
+                "model": k.distortion.model, "coefficients": list(k.distortion.coefficients)},
             "actuation": None
             if self.actuation_names is None
             else {"names": list(self.actuation_names), "control": self.actuation_control},
@@ -119,10 +122,13 @@ def iter_frames(path: Path) -> Iterator[RgbdFrame]:
     Raises RecordingError for a missing file, a file that is not MCAP, a recording without the
     colour, depth or camera_info topic, and frames whose depth and colour sizes differ. Warns
     (RecordingWarning) when the file is truncated or damaged (the frames of damaged chunks are
-    skipped and counted, every other frame is yielded) or frames are incomplete.
+    skipped and counted, every other frame is yielded) or frames are incomplete. Frames
+    through a distorting lens (camera_info's distortion model and D) come rectified: the
+    pinhole image of their K (camera.rectification).
     """
     with open_recording(path) as recording:
-        yield from frames_from_messages(path, recording_messages(recording, {}))
+        for frame in frames_from_messages(path, recording_messages(recording, {})):
+            yield rectified(frame)
 
 
 @dataclass
@@ -298,15 +304,14 @@ class _FrameAssembler:
     def assemble(self, time_ns: int, parts: dict[str, bytes]) -> RgbdFrame | None:
         where = f"{self.path} at log time {time_ns} ns"
         if fmt.CAMERA_INFO_TOPIC in parts:
-            self.intrinsics = fmt.decode_camera_info(parts[fmt.CAMERA_INFO_TOPIC], where)
-            if not self.distortion_told and any(
-                    fmt.camera_distortion(parts[fmt.CAMERA_INFO_TOPIC])):
+            self.intrinsics, unread = fmt.decode_camera_info(parts[fmt.CAMERA_INFO_TOPIC],
+                                                             where)
+            if unread is not None and not self.distortion_told:
                 self.distortion_told = True
                 warnings.warn(
-                    f"{self.path}: camera_info has lens distortion coefficients, which "
-                    "softforce does not apply (it reads images through K alone): rectify "
-                    "the images first, or expect points off by the distortion at the edges",
-                    RecordingWarning, stacklevel=3)
+                    f"{self.path}: camera_info's {unread}: its images are read through K "
+                    "alone; rectify them first, or expect points off by the distortion at "
+                    "the edges", RecordingWarning, stacklevel=3)
         if fmt.ACTUATION_TOPIC in parts:  # inputs hold until changed (docs/recordings.md)
             self.actuation = fmt.decode_actuation(parts[fmt.ACTUATION_TOPIC], where)
         if parts.keys() <= {fmt.CAMERA_INFO_TOPIC, fmt.ACTUATION_TOPIC}:

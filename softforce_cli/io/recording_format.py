@@ -24,6 +24,7 @@ from google.protobuf.timestamp_pb2 import Timestamp
 
 from softforce_cli.camera.frame import Actuation, Markers
 from softforce_cli.camera.intrinsics import CameraIntrinsics
+from softforce_cli.camera.lens import LensDistortion, LensModelError
 from softforce_cli.errors import RecordingError
 
 COLOR_TOPIC = "/camera/color/image_raw"
@@ -110,15 +111,17 @@ def encode_depth(depth_mm: np.ndarray, time_ns: int) -> bytes:
 
 
 def encode_camera_info(intrinsics: CameraIntrinsics, time_ns: int) -> bytes:
-    """Pinhole intrinsics -> serialized foxglove.CameraCalibration (plumb_bob, zero distortion)."""
+    """Intrinsics -> serialized foxglove.CameraCalibration: K, and the lens' distortion model
+    and coefficients (plumb_bob with zero coefficients for a pinhole image)."""
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+    lens = intrinsics.distortion
     return CameraCalibration(
         timestamp=timestamp_from_ns(time_ns),
         frame_id=OPTICAL_FRAME_ID,
         width=intrinsics.width,
         height=intrinsics.height,
-        distortion_model="plumb_bob",
-        D=[0.0] * 5,
+        distortion_model="plumb_bob" if lens is None else lens.model,
+        D=[0.0] * 5 if lens is None else list(lens.coefficients),
         K=[fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
         R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
         P=[fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0],
@@ -196,8 +199,11 @@ def decode_depth(data: bytes, what: str = "depth image") -> np.ndarray:
     )
 
 
-def decode_camera_info(data: bytes, what: str = "camera_info") -> CameraIntrinsics:
-    """Serialized foxglove.CameraCalibration -> pinhole intrinsics (from K)."""
+def decode_camera_info(data: bytes, what: str = "camera_info"
+                       ) -> tuple[CameraIntrinsics, str | None]:
+    """Serialized foxglove.CameraCalibration -> the intrinsics (K and the lens' distortion,
+    camera.lens), and why the distortion could not be taken (an unknown model: the image is
+    then read through K alone), None when it could."""
     try:
         calibration = CameraCalibration.FromString(data)
     except DecodeError as error:
@@ -209,23 +215,21 @@ def decode_camera_info(data: bytes, what: str = "camera_info") -> CameraIntrinsi
         )
     if calibration.width == 0 or calibration.height == 0:
         raise RecordingError(f"{what} gives no image size (width and height are 0)")
-    return CameraIntrinsics(
+    try:
+        lens, unread = LensDistortion.from_camera_info(calibration.distortion_model,
+                                                       calibration.D), None
+    except LensModelError as error:
+        lens, unread = None, str(error)
+    intrinsics = CameraIntrinsics(
         width=int(calibration.width),
         height=int(calibration.height),
         fx=float(K[0]),
         fy=float(K[4]),
         cx=float(K[2]),
         cy=float(K[5]),
+        distortion=lens,
     )
-
-
-def camera_distortion(data: bytes) -> tuple[float, ...]:
-    """The distortion coefficients D of a serialized foxglove.CameraCalibration (softforce
-    reads images through K alone, docs/recordings.md); () when it cannot be parsed."""
-    try:
-        return tuple(float(d) for d in CameraCalibration.FromString(data).D)
-    except DecodeError:
-        return ()
+    return intrinsics, unread
 
 
 def _load_json(data: bytes, what: str) -> dict:

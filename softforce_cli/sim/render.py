@@ -3,8 +3,9 @@
 The scene is built in the camera's optical frame (x right, y down, z forward): the vertices of
 every surface are moved there once per frame, so that the rays of a pinhole camera all start
 at the origin and depend only on the intrinsics (cached). Each ray's direction is
-((u - cx) / fx, (v - cy) / fy, 1), so the hit distance, in units of the direction's length,
-is the depth along the optical z axis directly.
+((u - cx) / fx, (v - cy) / fy, 1), or through a distorting lens the ray (x, y, 1) that pixel
+sees (camera.rectification.pixel_rays), so the hit distance, in units of the direction's
+length, is the depth along the optical z axis directly.
 
 The output is ideal (noise-free, hole-free, float); softforce_cli.sim.depth_noise turns it into
 what a RealSense D415 would deliver.
@@ -19,6 +20,7 @@ import numpy as np
 import open3d as o3d
 
 from softforce_cli.camera.intrinsics import CameraIntrinsics
+from softforce_cli.camera.rectification import pixel_rays
 from softforce_cli.model.mesh import TetMesh
 from softforce_cli.sim.camera_pose import invert_pose, transform_points
 
@@ -164,21 +166,18 @@ def table_surface(
 
 
 @lru_cache(maxsize=8)
-def _pinhole_rays(intrinsics: CameraIntrinsics) -> tuple[o3d.core.Tensor, np.ndarray]:
+def _pixel_rays(intrinsics: CameraIntrinsics) -> tuple[o3d.core.Tensor, np.ndarray]:
     """Rays of every pixel from the optical centre, and their unit directions.
 
-    -> (h, w, 6) float32 open3d tensor [0, 0, 0, (u - cx) / fx, (v - cy) / fy, 1],
+    -> (h, w, 6) float32 open3d tensor [0, 0, 0, x, y, 1], (x, y, 1) the ray the pixel sees
+       ((u - cx) / fx, (v - cy) / fy, 1) through a lens without distortion; pixels through
+       a distortion that maps no ray look backwards (0, 0, -1), at nothing),
        (3, h * w) float32 unit directions, one row per axis (read-only).
     """
-    v, u = np.mgrid[0 : intrinsics.height, 0 : intrinsics.width]
-    directions = np.stack(
-        [
-            (u - intrinsics.cx) / intrinsics.fx,
-            (v - intrinsics.cy) / intrinsics.fy,
-            np.ones(u.shape),
-        ],
-        axis=-1,
-    )
+    x, y = pixel_rays(intrinsics)
+    seen = np.isfinite(x) & np.isfinite(y)
+    directions = np.stack([np.where(seen, x, 0.0), np.where(seen, y, 0.0),
+                           np.where(seen, 1.0, -1.0)], axis=-1)
     rays = np.concatenate([np.zeros_like(directions), directions], axis=-1).astype(np.float32)
     unit = (directions / np.linalg.norm(directions, axis=-1, keepdims=True)).reshape(-1, 3)
     unit = np.ascontiguousarray(unit.T, dtype=np.float32)
@@ -333,7 +332,7 @@ def render(
 
     surfaces       : triangle surfaces in the world (robot) frame; RenderedView.geometry_index
                      indexes this list.
-    intrinsics     : image size and pinhole parameters (optical frame).
+    intrinsics     : image size, pinhole parameters (optical frame) and lens distortion.
     world_from_cam : (4, 4) pose of the camera's optical frame in the world, mm.
     ambient        : colour = base * (ambient + (1 - ambient) * cos_light), a Lambertian
                      term plus ambient light; 1 gives flat base colours. The shade is
@@ -350,7 +349,7 @@ def render(
     background_rgb : (3,) colour where no ray hits.
     """
     h, w = intrinsics.height, intrinsics.width
-    rays, unit_directions = _pinhole_rays(intrinsics)
+    rays, unit_directions = _pixel_rays(intrinsics)
     scene, surface_of_id, vertices_cam = _camera_frame_scene(surfaces, invert_pose(world_from_cam))
     # Flat per-pixel views of the outputs (no copies). Every pixel is processed, background
     # included (a miss has normal 0 and its own row in the shading table), and gathers use

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from softforce_cli.camera.lens import LensDistortion, LensModelError
 from softforce_cli.errors import ScenarioError
 from softforce_cli.fem.materials import LAWS
 from softforce_cli.model.effects import Effect, EffectError, parse_effects
@@ -48,6 +49,8 @@ _KEYS = {
         "up_hint",
         "noise",
         "noise_scale",
+        "distortion_model",
+        "distortion",
     },
     "scene": {"table_z_mm", "robot_rgb", "probe_rgb", "weight_rgb", "table_rgb", "ambient",
               "light_direction", "specular", "shininess"},
@@ -108,6 +111,9 @@ class CameraSpec:
     # multiplies the D415's axial depth noise (sim.depth_noise.D415Noise.scaled): 0 none,
     # 1 the D415's, 2 twice
     noise_scale: float = 1.0
+    # the lens' distortion (camera.lens; None: a pinhole camera), written in the recording's
+    # camera_info: each pixel sees the ray its distorted position maps to
+    lens: LensDistortion | None = None
 
     def checked(self, source: Path) -> CameraSpec:
         """This camera, or ScenarioError when no pose follows from it (a camera looking at
@@ -237,6 +243,8 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
             up_hint=check.vector(camera.get("up_hint", [0, 1, 0]), "camera.up_hint"),
             noise=bool(camera.get("noise", True)),
             noise_scale=check.non_negative(camera.get("noise_scale", 1.0), "camera.noise_scale"),
+            lens=check.lens(camera.get("distortion_model", "plumb_bob"),
+                            camera.get("distortion", []), "camera.distortion"),
         ).checked(path),
         scene=SceneSpec(
             table_z_mm=check.number(scene.get("table_z_mm", -37.5), "scene.table_z_mm"),
@@ -364,6 +372,18 @@ class _Checker:
         if not any(vector):
             raise ScenarioError(f"{self.source}: {key} must not be zero")
         return vector
+
+    def lens(self, model: Any, coefficients: Any, key: str) -> LensDistortion | None:
+        if not isinstance(model, str):
+            raise ScenarioError(f"{self.source}: {key}_model must be a string, got {model!r}")
+        if not isinstance(coefficients, list):
+            raise ScenarioError(f"{self.source}: {key} must be an array of numbers, got "
+                                f"{coefficients!r}")
+        values = [self.number(c, key) for c in coefficients]
+        try:
+            return LensDistortion.from_camera_info(model, values)
+        except LensModelError as error:
+            raise ScenarioError(f"{self.source}: {key}: {error}") from error
 
     def vector(self, value: Any, key: str) -> tuple[float, float, float]:
         if not isinstance(value, list) or len(value) != 3:

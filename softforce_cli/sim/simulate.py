@@ -106,9 +106,9 @@ def prepare_simulation(scenario_path: Path, output: Path, force: bool = False) -
     return Simulation(
         scenario=scenario,
         robot=robot,
-        intrinsics=CameraIntrinsics.from_fov(
+        intrinsics=dataclasses.replace(CameraIntrinsics.from_fov(
             camera.width, camera.height, camera.horizontal_fov_deg
-        ),
+        ), distortion=camera.lens),
         world_from_cam=look_at(
             np.array(camera.position_mm), np.array(camera.look_at_mm), np.array(camera.up_hint)
         ),
@@ -435,6 +435,9 @@ def _truth_document(
                 "fy": intrinsics.fy,
                 "cx": intrinsics.cx,
                 "cy": intrinsics.cy,
+                "distortion": None if intrinsics.distortion is None else {
+                    "model": intrinsics.distortion.model,
+                    "coefficients": list(intrinsics.distortion.coefficients)},
             },
             # p_robot = R p_cam + T, the transform calibration estimates (docs/robot_model.md)
             "rotation": _rounded(world_from_cam[:3, :3], 12),
