@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import signal
 import warnings
@@ -17,6 +18,7 @@ from mcap.reader import make_reader
 from mcap.writer import Writer as McapWriter
 from mcap_protobuf.decoder import DecoderFactory
 from mcap_protobuf.schema import register_schema
+from PIL import Image
 from typer.testing import CliRunner
 
 from softforce_cli import __version__
@@ -333,6 +335,19 @@ def _with_distortion(info: bytes, distortion: tuple[float, ...],
     return message.SerializeToString()
 
 
+def compressed(pixels: np.ndarray, format: str, data: bytes | None = None) -> bytes:
+    """A serialized foxglove.CompressedImage of pixels (h, w, 3) uint8 or (h, w) uint16 in
+    format ('jpeg' at quality 95; ROS's compressedDepth: a 12-byte header, then the png);
+    data: these bytes instead."""
+    if data is None:
+        stream = io.BytesIO()
+        kind = "png" if "compressedDepth" in format else format
+        Image.fromarray(pixels).save(stream, format=kind, quality=95)
+        header = b"\0" * 12 if "compressedDepth" in format else b""
+        data = header + stream.getvalue()
+    return CompressedImage(format=format, data=data).SerializeToString()
+
+
 def write_custom(
     path: Path,
     frames: list[RgbdFrame],
@@ -340,7 +355,9 @@ def write_custom(
     topics=fmt.FRAME_TOPICS,
     extra=True,
     depth_size=None,
-    color_schema=RawImage,
+    color_format=None,
+    depth_format=None,
+    compressed_data=None,
     color_encoding="rgb8",
     depth_encoding="16UC1",
     distortion=(),
@@ -348,18 +365,22 @@ def write_custom(
     actuation_on_change=False,
 ) -> None:
     """A recording written with the bare mcap writer: extra topics, missing or odd ones,
-    colour and depth in other encodings (an unknown one relabels the rgb8 bytes)."""
+    colour and depth in other encodings (an unknown one relabels the rgb8 bytes), or as
+    foxglove.CompressedImage of color_format and depth_format (compressed_data: its bytes
+    instead of the image's)."""
     with open(path, "wb") as stream:
         writer = McapWriter(stream)
         writer.start()
         image_schema = register_schema(writer, RawImage)
         info_schema = register_schema(writer, CameraCalibration)
-        color_schema_id = register_schema(writer, color_schema)
+        compressed_schema = register_schema(writer, CompressedImage)
         ids = {}
         for topic in topics:
-            schema = {fmt.COLOR_TOPIC: color_schema_id, fmt.CAMERA_INFO_TOPIC: info_schema}.get(
-                topic, image_schema
-            )
+            schema = {
+                fmt.COLOR_TOPIC: image_schema if color_format is None else compressed_schema,
+                fmt.DEPTH_TOPIC: image_schema if depth_format is None else compressed_schema,
+                fmt.CAMERA_INFO_TOPIC: info_schema,
+            }.get(topic, image_schema)
             if topic in (fmt.ACTUATION_TOPIC, fmt.MARKERS_TOPIC):
                 ids[topic] = writer.register_channel(topic, "json", 0)
             else:
@@ -385,8 +406,10 @@ def write_custom(
                 message.encoding, message.data = "32FC1", metres.tobytes()
                 message.step = 4 * depth.shape[1]
                 depth_data = message.SerializeToString()
-            if color_schema is CompressedImage:
-                color = CompressedImage(format="jpeg", data=b"\xff\xd8").SerializeToString()
+            if color_format is not None:
+                color = compressed(frame.color, color_format, compressed_data)
+            if depth_format is not None:
+                depth_data = compressed(depth, depth_format, compressed_data)
             data = {
                 fmt.COLOR_TOPIC: color,
                 fmt.DEPTH_TOPIC: depth_data,
@@ -494,7 +517,13 @@ def test_other_tools_encodings_read_as_the_same_frames(tmp_path, color_encoding,
         ({"topics": (fmt.COLOR_TOPIC, fmt.DEPTH_TOPIC)}, "has no /camera/color/camera_info"),
         ({"topics": (fmt.DEPTH_TOPIC, fmt.CAMERA_INFO_TOPIC)}, "has no /camera/color/image_raw"),
         ({"depth_size": (24, 32)}, "depth is 32x24 but colour is 64x48"),
-        ({"color_schema": CompressedImage}, "holds foxglove.CompressedImage"),
+        ({"color_format": "jpeg", "compressed_data": b"\xff\xd8"},
+         "is not a readable jpeg image"),
+        ({"color_format": "png", "compressed_data": b"\xff\xd8\xff"},
+         "is not a readable png image"),
+        ({"color_format": "tiff"}, "compressed as 'tiff'; softforce reads jpeg or png or webp"),
+        ({"depth_format": "jpeg", "compressed_data": b"\xff\xd8"},
+         "compressed as 'jpeg'; softforce reads png there"),
         ({"color_encoding": "yuv422"}, "encoding 'yuv422'; softforce reads rgb8, bgr8"),
     ],
 )
@@ -506,6 +535,39 @@ def test_bad_recordings_are_rejected(tmp_path, kwargs, message):
     if "depth_size" not in kwargs and "color_encoding" not in kwargs:
         with pytest.raises(RecordingError, match=message):
             read_summary(path)
+
+
+@pytest.mark.parametrize(("color_format", "depth_format"),
+                         [("png", "png"), ("jpeg", "16UC1; compressedDepth png"),
+                          ("webp", "png")])
+def test_compressed_images_are_read(tmp_path, color_format, depth_format):
+    """foxglove.CompressedImage on the image topics, as Foxglove and ROS tools record to save
+    space: png colour and depth are the frame's to the bit, jpeg and webp colour within a
+    few levels of it (on a smooth image; random pixels are tens of levels off)."""
+    rows, columns = np.mgrid[0:48, 0:64]
+    smooth = np.stack([4 * columns, 5 * rows, 2 * (rows + columns)], axis=-1).astype(np.uint8)
+    frames = [replace(f, color=smooth) for f in make_frames(3)]
+    path = tmp_path / "compressed.mcap"
+    write_custom(path, frames, color_format=color_format, depth_format=depth_format)
+    got = list(iter_frames(path))
+    assert len(got) == 3 and read_summary(path).frame_count == 3
+    for g, w in zip(got, frames, strict=True):
+        np.testing.assert_array_equal(g.depth_mm, w.depth_mm)
+        assert g.color.shape == w.color.shape and g.color.dtype == np.uint8
+        error = np.abs(g.color.astype(int) - w.color.astype(int))
+        if color_format == "png":
+            assert error.max() == 0
+        else:
+            assert 0 < error.mean() < 3
+
+
+def test_an_8_bit_depth_png_is_refused(tmp_path):
+    frames = make_frames(1)
+    path = tmp_path / "depth8.mcap"
+    eight = [replace(f, depth_mm=(f.depth_mm >> 8).astype(np.uint8)) for f in frames]
+    write_custom(path, eight, depth_format="png")
+    with pytest.raises(RecordingError, match="is a L png; softforce reads compressed depth"):
+        list(iter_frames(path))
 
 
 @pytest.mark.parametrize(("index", "value"),

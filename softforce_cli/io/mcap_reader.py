@@ -42,9 +42,9 @@ from softforce_cli.io.mcap_scan import ChunkFinder, scanned_records
 __all__ = ["RecordingSummary", "RecordingWarning", "TopicSummary", "iter_frames", "read_summary"]
 
 _EXPECTED_SCHEMAS = {
-    fmt.COLOR_TOPIC: ("protobuf", "foxglove.RawImage"),
-    fmt.DEPTH_TOPIC: ("protobuf", "foxglove.RawImage"),
-    fmt.CAMERA_INFO_TOPIC: ("protobuf", "foxglove.CameraCalibration"),
+    fmt.COLOR_TOPIC: ("protobuf", (fmt.RAW_IMAGE, fmt.COMPRESSED_IMAGE)),
+    fmt.DEPTH_TOPIC: ("protobuf", (fmt.RAW_IMAGE, fmt.COMPRESSED_IMAGE)),
+    fmt.CAMERA_INFO_TOPIC: ("protobuf", ("foxglove.CameraCalibration",)),
     fmt.ACTUATION_TOPIC: ("json", None),
     fmt.MARKERS_TOPIC: ("json", None),
 }
@@ -184,8 +184,9 @@ def open_recording(path: Path) -> Iterator[OpenRecording]:
 
 def recording_messages(
     recording: OpenRecording, metadata: dict[str, dict[str, str]]
-) -> Iterator[tuple[str, int, bytes]]:
-    """(topic, log_time, data) of softforce topics, in log-time order when indexed.
+) -> Iterator[tuple[str, int, bytes, str]]:
+    """(topic, log_time, data, schema name) of softforce topics, in log-time order when
+    indexed.
 
     Metadata records are stored into `metadata`. Damage is reported as one RecordingWarning
     once the messages are exhausted.
@@ -199,7 +200,9 @@ def recording_messages(
         for message in indexed_messages(
             stream, size, recording.chunks, set(channels), damage, finder
         ):
-            yield channels[message.channel_id].topic, message.log_time, message.data
+            channel = channels[message.channel_id]
+            yield (channel.topic, message.log_time, message.data,
+                   _schema_name(channel, summary.schemas))
     else:
         yield from _scanned_messages(recording, metadata)
     damage.warn()
@@ -222,11 +225,17 @@ def check_channels(
     return ours
 
 
+def _schema_name(channel: Channel, schemas: dict[int, Schema]) -> str:
+    schema = schemas.get(channel.schema_id)
+    return schema.name if schema is not None else ""
+
+
 def _check_schema(path: Path, channel: Channel, schema: Schema | None) -> None:
-    encoding, schema_name = _EXPECTED_SCHEMAS[channel.topic]
+    encoding, schema_names = _EXPECTED_SCHEMAS[channel.topic]
     actual = schema.name if schema is not None else "no schema"
-    if channel.message_encoding != encoding or (schema_name and actual != schema_name):
-        expected = f"{schema_name} ({encoding})" if schema_name else encoding
+    if channel.message_encoding != encoding or (schema_names and actual not in schema_names):
+        expected = (f"{' or '.join(schema_names)} ({encoding})" if schema_names
+                    else encoding)
         raise RecordingError(
             f"{path}: topic {channel.topic} holds {actual} ({channel.message_encoding}) "
             f"messages; softforce reads {expected}"
@@ -235,8 +244,9 @@ def _check_schema(path: Path, channel: Channel, schema: Schema | None) -> None:
 
 def _scanned_messages(
     recording: OpenRecording, metadata: dict[str, dict[str, str]]
-) -> Iterator[tuple[str, int, bytes]]:
-    """Messages in file order, read past damaged chunks; metadata stored into `metadata`."""
+) -> Iterator[tuple[str, int, bytes, str]]:
+    """Messages (as recording_messages) in file order, read past damaged chunks; metadata
+    stored into `metadata`."""
     path = recording.path
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
@@ -255,7 +265,8 @@ def _scanned_messages(
             _check_schema(path, record, schemas.get(record.schema_id))
             channels[record.id] = record
         elif isinstance(record, Message) and record.channel_id in channels:
-            yield channels[record.channel_id].topic, record.log_time, record.data
+            channel = channels[record.channel_id]
+            yield channel.topic, record.log_time, record.data, _schema_name(channel, schemas)
         elif isinstance(record, Metadata):
             metadata[record.name] = dict(record.metadata)
     present = {ch.topic for ch in channels.values()}
@@ -269,13 +280,14 @@ def _scanned_messages(
 
 
 def frames_from_messages(
-    path: Path, messages: Iterator[tuple[str, int, bytes]]
+    path: Path, messages: Iterator[tuple[str, int, bytes, str]]
 ) -> Iterator[RgbdFrame]:
     """Group messages by log time into frames; skip (and count) groups missing an image."""
     assembler = _FrameAssembler(path)
     group_time: int | None = None
     parts: dict[str, bytes] = {}
-    for topic, log_time, data in messages:
+    for topic, log_time, data, schema in messages:
+        assembler.schemas[topic] = schema
         if log_time != group_time:
             if parts and (frame := assembler.assemble(group_time, parts)) is not None:
                 yield frame
@@ -300,6 +312,7 @@ class _FrameAssembler:
         self.last_time_ns: int | None = None
         self.actuation: Actuation | None = None
         self.distortion_told = False
+        self.schemas: dict[str, str] = {}  # each topic's schema name (its channel's)
 
     def assemble(self, time_ns: int, parts: dict[str, bytes]) -> RgbdFrame | None:
         where = f"{self.path} at log time {time_ns} ns"
@@ -323,8 +336,10 @@ class _FrameAssembler:
             self.out_of_order += 1  # a repeated or misplaced chunk of a damaged file
             return None
         self.last_time_ns = time_ns
-        color = fmt.decode_color(parts[fmt.COLOR_TOPIC], f"colour image of {where}")
-        depth = fmt.decode_depth(parts[fmt.DEPTH_TOPIC], f"depth image of {where}")
+        color = fmt.decode_color(parts[fmt.COLOR_TOPIC], f"colour image of {where}",
+                                 self.schemas[fmt.COLOR_TOPIC])
+        depth = fmt.decode_depth(parts[fmt.DEPTH_TOPIC], f"depth image of {where}",
+                                 self.schemas[fmt.DEPTH_TOPIC])
         _check_sizes(where, color, depth, self.intrinsics)
         markers = parts.get(fmt.MARKERS_TOPIC)
         self.frames += 1

@@ -14,13 +14,16 @@ container itself is handled by mcap_writer.py and mcap_reader.py.
 
 from __future__ import annotations
 
+import io
 import json
 
 import numpy as np
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from google.protobuf.message import DecodeError
 from google.protobuf.timestamp_pb2 import Timestamp
+from PIL import Image, UnidentifiedImageError
 
 from softforce_cli.camera.frame import Actuation, Markers
 from softforce_cli.camera.intrinsics import CameraIntrinsics
@@ -37,6 +40,12 @@ REQUIRED_TOPICS = (COLOR_TOPIC, DEPTH_TOPIC, CAMERA_INFO_TOPIC)
 FRAME_TOPICS = (*REQUIRED_TOPICS, ACTUATION_TOPIC, MARKERS_TOPIC)
 
 OPTICAL_FRAME_ID = "camera_color_optical_frame"
+# the image topics' schemas: raw (softforce's own) or compressed, as another tool may write
+RAW_IMAGE = "foxglove.RawImage"
+COMPRESSED_IMAGE = "foxglove.CompressedImage"
+# colour may be lossy; depth only png (16-bit greyscale, mm)
+COMPRESSED_COLOR_FORMATS = ("jpeg", "png", "webp")
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 METADATA_NAME = "softforce"
 CONTROL_MODES = ("displacement", "force")
 
@@ -143,6 +152,32 @@ def encode_markers(markers: Markers) -> bytes:
     return json.dumps(document).encode()
 
 
+def _decompressed(data: bytes, what: str, formats: tuple[str, ...]) -> Image.Image:
+    """A serialized foxglove.CompressedImage decoded (Pillow); RecordingError
+    for a format not in formats or data that is not an image of it. ROS's compressedDepth
+    ("16UC1; compressedDepth png") puts a 12-byte header before its png, which is skipped."""
+    try:
+        message = CompressedImage.FromString(data)
+    except DecodeError as error:
+        raise RecordingError(f"{what} is not a valid foxglove.CompressedImage ({error})"
+                             ) from error
+    fmt = message.format.strip().lower()
+    name = "png" if "compresseddepth" in fmt else {"jpg": "jpeg"}.get(fmt, fmt)
+    if name not in formats:
+        raise RecordingError(f"{what} is compressed as {message.format!r}; softforce reads "
+                             f"{' or '.join(formats)} there")
+    payload = message.data
+    start = payload.find(PNG_SIGNATURE, 0, 12 + len(PNG_SIGNATURE)) if name == "png" else 0
+    try:
+        image = Image.open(io.BytesIO(payload[max(start, 0):]))
+        image.load()
+    except (UnidentifiedImageError, OSError, ValueError) as error:
+        raise RecordingError(f"{what} is not a readable {name} image ({error})") from error
+    if image.format is None or image.format.lower() != name:
+        raise RecordingError(f"{what} says {name} but holds {image.format or 'no'} image data")
+    return image
+
+
 def _parse_raw_image(data: bytes, what: str) -> RawImage:
     try:
         return RawImage.FromString(data)
@@ -167,9 +202,12 @@ def _image_rows(image: RawImage, bytes_per_pixel: int, what: str) -> np.ndarray:
     return rows.reshape(image.height, image.step)[:, :row_bytes]
 
 
-def decode_color(data: bytes, what: str = "colour image") -> np.ndarray:
-    """Serialized foxglove.RawImage rgb8 (or bgr8, rgba8, bgra8) -> (h, w, 3) uint8 RGB (a
-    writable copy)."""
+def decode_color(data: bytes, what: str = "colour image", schema: str = RAW_IMAGE) -> np.ndarray:
+    """Serialized foxglove.RawImage rgb8 (or bgr8, rgba8, bgra8), or foxglove.CompressedImage
+    (COMPRESSED_COLOR_FORMATS) -> (h, w, 3) uint8 RGB (a writable copy)."""
+    if schema == COMPRESSED_IMAGE:
+        image = _decompressed(data, what, COMPRESSED_COLOR_FORMATS)
+        return np.array(image.convert("RGB"), dtype=np.uint8)
     image = _parse_raw_image(data, what)
     if image.encoding not in COLOR_LAYOUTS:
         raise RecordingError(
@@ -181,9 +219,16 @@ def decode_color(data: bytes, what: str = "colour image") -> np.ndarray:
     return rows.reshape(image.height, image.width, channels)[:, :, rgb].copy()
 
 
-def decode_depth(data: bytes, what: str = "depth image") -> np.ndarray:
-    """Serialized foxglove.RawImage 16UC1 (mm; or 32FC1, metres) -> (h, w) uint16 depth in
-    mm (a writable copy; 0 where there is none: a float depth not finite or not positive)."""
+def decode_depth(data: bytes, what: str = "depth image", schema: str = RAW_IMAGE) -> np.ndarray:
+    """Serialized foxglove.RawImage 16UC1 (mm; or 32FC1, metres), or foxglove.CompressedImage
+    as a 16-bit png (mm) -> (h, w) uint16 depth in mm (a writable copy; 0 where there is
+    none: a float depth not finite or not positive)."""
+    if schema == COMPRESSED_IMAGE:
+        image = _decompressed(data, what, ("png",))
+        if image.mode not in ("I;16", "I;16B", "I"):
+            raise RecordingError(f"{what} is a {image.mode} png; softforce reads compressed "
+                                 "depth as a 16-bit greyscale png in mm")
+        return np.array(image, dtype=np.uint16)
     image = _parse_raw_image(data, what)
     if image.encoding in DEPTH_ENCODINGS:
         rows = _image_rows(image, 2, what)
