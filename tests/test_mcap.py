@@ -561,6 +561,26 @@ def test_compressed_images_are_read(tmp_path, color_format, depth_format):
             assert 0 < error.mean() < 3
 
 
+@pytest.mark.parametrize("kind", ["jpeg", "png"])
+def test_damaged_compressed_images_are_refused_in_a_line(tmp_path, kind):
+    """Truncated or bit-flipped compressed colour: a RecordingError, never Pillow's own."""
+    whole = CompressedImage.FromString(compressed(make_frames(1)[0].color, kind)).data
+    rng = np.random.default_rng(3)
+    flipped = bytearray(whole)
+    for index in rng.integers(20, len(whole), 40):
+        flipped[index] ^= 0xFF
+    for damaged, must_fail in ((whole[: len(whole) // 2], True), (whole[:30], True),
+                               (bytes(flipped), False)):
+        path = tmp_path / "damaged.mcap"
+        write_custom(path, make_frames(1), color_format=kind, compressed_data=damaged)
+        try:
+            list(iter_frames(path))
+        except RecordingError as error:
+            assert f"is not a readable {kind} image" in str(error)
+        else:  # flipped bits may still decode (to other colours)
+            assert not must_fail
+
+
 def test_an_8_bit_depth_png_is_refused(tmp_path):
     frames = make_frames(1)
     path = tmp_path / "depth8.mcap"

@@ -23,7 +23,7 @@ from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from google.protobuf.message import DecodeError
 from google.protobuf.timestamp_pb2 import Timestamp
-from PIL import Image, UnidentifiedImageError
+from PIL import Image
 
 from softforce_cli.camera.frame import Actuation, Markers
 from softforce_cli.camera.intrinsics import CameraIntrinsics
@@ -171,7 +171,9 @@ def _decompressed(data: bytes, what: str, formats: tuple[str, ...]) -> Image.Ima
     try:
         image = Image.open(io.BytesIO(payload[max(start, 0):]))
         image.load()
-    except (UnidentifiedImageError, OSError, ValueError) as error:
+    except MemoryError:
+        raise
+    except Exception as error:  # Pillow's decoders raise many kinds on damaged data
         raise RecordingError(f"{what} is not a readable {name} image ({error})") from error
     if image.format is None or image.format.lower() != name:
         raise RecordingError(f"{what} says {name} but holds {image.format or 'no'} image data")
