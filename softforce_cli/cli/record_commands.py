@@ -1,6 +1,7 @@
-"""`softforce record`: RGB-D (+ actuation) from a RealSense or a .bag/.db3 file into MCAP.
+"""`softforce record`: RGB-D (+ actuation) from a RealSense, a RealSense .bag/.db3 file or a
+ROS 2 bag of one into MCAP.
 
-softforce record (--live | --from FILE.db3|.bag) -o REC.mcap [--actuation ACT.csv] ...
+softforce record (--live | --from FILE.db3|.bag|.mcap) -o REC.mcap [--actuation ACT.csv] ...
 softforce record info REC.mcap [--json]
 """
 
@@ -34,6 +35,7 @@ from softforce_cli.errors import RecordingError
 from softforce_cli.io.atomic import check_writable
 from softforce_cli.io.mcap_reader import RecordingSummary, read_summary
 from softforce_cli.io.mcap_writer import write_recording
+from softforce_cli.io.ros2_bag import is_ros2_bag, iter_bag_frames
 
 app = typer.Typer(
     help="Record RGB-D frames and actuation inputs into an MCAP recording.",
@@ -53,7 +55,9 @@ def record(
     from_file: Annotated[
         Path | None,
         typer.Option(
-            "--from", help="Convert a RealSense recording (.bag or .db3).", dir_okay=False
+            "--from",
+            help="Convert a RealSense recording (.bag or .db3) or a ROS 2 bag of one (its "
+                 "folder, or its .db3 or .mcap file: realsense-ros with aligned depth).",
         ),
     ] = None,
     output: Annotated[
@@ -102,7 +106,8 @@ def record(
         settings = StreamSettings(width or 640, height or 480, fps or 30, preset_name)
         frames = iter_live_frames(settings, duration_s=duration, on_progress=display.update)
     else:
-        frames = iter_file_frames(from_file, duration_s=duration, on_progress=display.update)
+        read = iter_bag_frames if is_ros2_bag(from_file) else iter_file_frames
+        frames = read(from_file, duration_s=duration, on_progress=display.update)
     if timeline is not None:
         frames = with_actuation(frames, timeline)
     with display:

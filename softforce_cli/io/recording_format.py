@@ -152,21 +152,16 @@ def encode_markers(markers: Markers) -> bytes:
     return json.dumps(document).encode()
 
 
-def _decompressed(data: bytes, what: str, formats: tuple[str, ...]) -> Image.Image:
-    """A serialized foxglove.CompressedImage decoded (Pillow); RecordingError
-    for a format not in formats or data that is not an image of it. ROS's compressedDepth
-    ("16UC1; compressedDepth png") puts a 12-byte header before its png, which is skipped."""
-    try:
-        message = CompressedImage.FromString(data)
-    except DecodeError as error:
-        raise RecordingError(f"{what} is not a valid foxglove.CompressedImage ({error})"
-                             ) from error
+def _decompressed(message, what: str, formats: tuple[str, ...]) -> Image.Image:
+    """A compressed image message decoded (Pillow); RecordingError for a format not in
+    formats or data that is not an image of it. ROS's compressedDepth ("16UC1;
+    compressedDepth png") puts a 12-byte header before its png, which is skipped."""
     fmt = message.format.strip().lower()
     name = "png" if "compresseddepth" in fmt else {"jpg": "jpeg"}.get(fmt, fmt)
     if name not in formats:
         raise RecordingError(f"{what} is compressed as {message.format!r}; softforce reads "
                              f"{' or '.join(formats)} there")
-    payload = message.data
+    payload = bytes(message.data)
     start = payload.find(PNG_SIGNATURE, 0, 12 + len(PNG_SIGNATURE)) if name == "png" else 0
     try:
         image = Image.open(io.BytesIO(payload[max(start, 0):]))
@@ -180,11 +175,13 @@ def _decompressed(data: bytes, what: str, formats: tuple[str, ...]) -> Image.Ima
     return image
 
 
-def _parse_raw_image(data: bytes, what: str) -> RawImage:
+def _parse(schema, data: bytes, what: str):
+    """Serialized protobuf `data` as a message of the foxglove `schema` class."""
     try:
-        return RawImage.FromString(data)
+        return schema.FromString(data)
     except DecodeError as error:
-        raise RecordingError(f"{what} is not a valid foxglove.RawImage ({error})") from error
+        raise RecordingError(f"{what} is not a valid foxglove.{schema.__name__} ({error})"
+                             ) from error
 
 
 def _image_rows(image: RawImage, bytes_per_pixel: int, what: str) -> np.ndarray:
@@ -208,9 +205,33 @@ def decode_color(data: bytes, what: str = "colour image", schema: str = RAW_IMAG
     """Serialized foxglove.RawImage rgb8 (or bgr8, rgba8, bgra8), or foxglove.CompressedImage
     (COMPRESSED_COLOR_FORMATS) -> (h, w, 3) uint8 RGB (a writable copy)."""
     if schema == COMPRESSED_IMAGE:
-        image = _decompressed(data, what, COMPRESSED_COLOR_FORMATS)
-        return np.array(image.convert("RGB"), dtype=np.uint8)
-    image = _parse_raw_image(data, what)
+        return compressed_color(_parse(CompressedImage, data, what), what)
+    return raw_color(_parse(RawImage, data, what), what)
+
+
+def decode_depth(data: bytes, what: str = "depth image", schema: str = RAW_IMAGE) -> np.ndarray:
+    """Serialized foxglove.RawImage 16UC1 (mm; or 32FC1, metres), or foxglove.CompressedImage
+    as a 16-bit png (mm) -> (h, w) uint16 depth in mm (a writable copy; 0 where there is
+    none: a float depth not finite or not positive)."""
+    if schema == COMPRESSED_IMAGE:
+        return compressed_depth(_parse(CompressedImage, data, what), what)
+    return raw_depth(_parse(RawImage, data, what), what)
+
+
+def decode_camera_info(data: bytes, what: str = "camera_info"
+                       ) -> tuple[CameraIntrinsics, str | None]:
+    """Serialized foxglove.CameraCalibration -> camera_intrinsics of it."""
+    calibration = _parse(CameraCalibration, data, what)
+    return camera_intrinsics(calibration.width, calibration.height, calibration.K,
+                             calibration.distortion_model, calibration.D, what)
+
+
+# The pixels of an image message, whatever its schema: foxglove's RawImage and ROS's
+# sensor_msgs/Image share encoding, width, height, step and data; foxglove's CompressedImage
+# and ROS's share format and data.
+
+def raw_color(image, what: str) -> np.ndarray:
+    """An uncompressed image message in COLOR_LAYOUTS -> (h, w, 3) uint8 RGB (a copy)."""
     if image.encoding not in COLOR_LAYOUTS:
         raise RecordingError(
             f"{what} has encoding '{image.encoding}'; softforce reads "
@@ -221,17 +242,9 @@ def decode_color(data: bytes, what: str = "colour image", schema: str = RAW_IMAG
     return rows.reshape(image.height, image.width, channels)[:, :, rgb].copy()
 
 
-def decode_depth(data: bytes, what: str = "depth image", schema: str = RAW_IMAGE) -> np.ndarray:
-    """Serialized foxglove.RawImage 16UC1 (mm; or 32FC1, metres), or foxglove.CompressedImage
-    as a 16-bit png (mm) -> (h, w) uint16 depth in mm (a writable copy; 0 where there is
-    none: a float depth not finite or not positive)."""
-    if schema == COMPRESSED_IMAGE:
-        image = _decompressed(data, what, ("png",))
-        if image.mode not in ("I;16", "I;16B", "I"):
-            raise RecordingError(f"{what} is a {image.mode} png; softforce reads compressed "
-                                 "depth as a 16-bit greyscale png in mm")
-        return np.array(image, dtype=np.uint16)
-    image = _parse_raw_image(data, what)
+def raw_depth(image, what: str) -> np.ndarray:
+    """An uncompressed depth image message (DEPTH_ENCODINGS in mm, or 32FC1 in metres) ->
+    (h, w) uint16 mm (a copy; 0 where a float depth is not finite or not positive)."""
     if image.encoding in DEPTH_ENCODINGS:
         rows = _image_rows(image, 2, what)
         return np.ascontiguousarray(rows).view("<u2").astype(np.uint16)
@@ -246,36 +259,40 @@ def decode_depth(data: bytes, what: str = "depth image", schema: str = RAW_IMAGE
     )
 
 
-def decode_camera_info(data: bytes, what: str = "camera_info"
-                       ) -> tuple[CameraIntrinsics, str | None]:
-    """Serialized foxglove.CameraCalibration -> the intrinsics (K and the lens' distortion,
-    camera.lens), and why the distortion could not be taken (an unknown model: the image is
-    then read through K alone), None when it could."""
-    try:
-        calibration = CameraCalibration.FromString(data)
-    except DecodeError as error:
-        raise RecordingError(f"{what} is not a valid foxglove.CameraCalibration") from error
-    K = list(calibration.K)
+def compressed_color(message, what: str) -> np.ndarray:
+    """A compressed image message (COMPRESSED_COLOR_FORMATS) -> (h, w, 3) uint8 RGB."""
+    image = _decompressed(message, what, COMPRESSED_COLOR_FORMATS)
+    return np.array(image.convert("RGB"), dtype=np.uint8)
+
+
+def compressed_depth(message, what: str) -> np.ndarray:
+    """A compressed depth message (a 16-bit greyscale png in mm) -> (h, w) uint16 mm."""
+    image = _decompressed(message, what, ("png",))
+    if image.mode not in ("I;16", "I;16B", "I"):
+        raise RecordingError(f"{what} is a {image.mode} png; softforce reads compressed "
+                             "depth as a 16-bit greyscale png in mm")
+    return np.array(image, dtype=np.uint16)
+
+
+def camera_intrinsics(width: int, height: int, K, distortion_model: str, D, what: str
+                      ) -> tuple[CameraIntrinsics, str | None]:
+    """A calibration message's image size, camera matrix K (9 values, row by row) and lens
+    (camera.lens) -> the intrinsics, and why the distortion could not be taken (an unknown
+    model: the image is then read through K alone), None when it could."""
+    K = list(K)
     if len(K) != 9 or not np.all(np.isfinite(K)) or K[0] <= 0.0 or K[4] <= 0.0:
         raise RecordingError(
             f"{what} has no usable camera matrix K (got {K}); the camera is uncalibrated"
         )
-    if calibration.width == 0 or calibration.height == 0:
+    if width == 0 or height == 0:
         raise RecordingError(f"{what} gives no image size (width and height are 0)")
     try:
-        lens, unread = LensDistortion.from_camera_info(calibration.distortion_model,
-                                                       calibration.D), None
+        lens, unread = LensDistortion.from_camera_info(distortion_model, D), None
     except LensModelError as error:
         lens, unread = None, str(error)
-    intrinsics = CameraIntrinsics(
-        width=int(calibration.width),
-        height=int(calibration.height),
-        fx=float(K[0]),
-        fy=float(K[4]),
-        cx=float(K[2]),
-        cy=float(K[5]),
-        distortion=lens,
-    )
+    intrinsics = CameraIntrinsics(width=int(width), height=int(height), fx=float(K[0]),
+                                  fy=float(K[4]), cx=float(K[2]), cy=float(K[5]),
+                                  distortion=lens)
     return intrinsics, unread
 
 
