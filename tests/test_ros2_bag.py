@@ -152,9 +152,9 @@ def test_depth_half_a_frame_from_every_colour_is_not_paired(tmp_path):
 
 @pytest.mark.parametrize(("messages", "message"), [
     (lambda: [m for m in bag_messages(2) if "aligned_depth" not in m[0]],
-     "has no's depth topic .*aligned_depth_to_color/image_raw.*align_depth.enable:=true"),
+     "has no depth topic .*aligned_depth_to_color/image_raw.*align_depth.enable:=true"),
     (lambda: bag_messages(2) + bag_messages(2, namespace="/arm/camera"),
-     "more than one camera's colour topic"),
+     "more than one camera with a colour topic"),
 ])
 def test_a_bag_without_one_cameras_aligned_streams_is_refused(tmp_path, messages, message):
     path = write_mcap_bag(tmp_path / "bad.mcap", messages())
@@ -164,6 +164,7 @@ def test_a_bag_without_one_cameras_aligned_streams_is_refused(tmp_path, messages
 
 def test_a_librealsense_db3_is_not_taken_for_a_ros2_bag(tmp_path):
     path = write_db3_bag(tmp_path / "librealsense.db3", [
+        ("/file_version", "std_msgs/msg/String", T0, {"data": "4"}),
         ("/device_0/sensor_1/Color_0/image/data", IMAGE, T0, bag_messages(1)[1][3])])
     assert not is_ros2_bag(path)
     assert not is_ros2_bag(tmp_path / "missing.mcap")

@@ -29,6 +29,7 @@ from collections.abc import Callable, Iterator
 from contextlib import closing
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
@@ -110,7 +111,8 @@ def is_ros2_bag(path: Path) -> bool:
         topics = bag_topics(bag_files(path)[0])
     except RecordingError:
         return False
-    return bool(topics) and not all(t.name.startswith("/device_") for t in topics)
+    # librealsense's own: its streams under /device_0/, beside /file_version and the like
+    return bool(topics) and not any(t.name.startswith("/device_") for t in topics)
 
 
 def bag_files(path: Path) -> list[Path]:
@@ -179,7 +181,7 @@ def _chosen_topics(path: Path, topics: list[BagTopic]) -> dict[str, BagTopic]:
             images = sorted(t.name for t in topics if t.type in (IMAGE, COMPRESSED, CAMERA_INFO))
             name = pattern.removeprefix("^(.*/)").split("(")[0].rstrip("$")
             raise RecordingError(
-                f"{path} has {'no' if not cameras else 'more than one camera'}'s {role} topic "
+                f"{path} has {'no' if not cameras else 'more than one camera with a'} {role} topic "
                 f"(a name ending in {name}; its image topics: {', '.join(images) or 'none'}): "
                 "record one RealSense a bag, with realsense-ros's align_depth.enable:=true")
         chosen[role] = min((topic for topic, _ in found), key=lambda t: t.type != IMAGE)
@@ -188,8 +190,7 @@ def _chosen_topics(path: Path, topics: list[BagTopic]) -> dict[str, BagTopic]:
 
 def _frames(files: list[Path], chosen: dict[str, BagTopic], duration_s: float | None,
             on_progress: ProgressCallback | None) -> Iterator[RgbdFrame]:
-    decoders = {topic.name: generate_dynamic(topic.type, topic.definition)[topic.type]
-                for topic in chosen.values()}
+    decoders = {topic.name: _decoder(files[0], topic) for topic in chosen.values()}
     roles = {topic.name: role for role, topic in chosen.items()}
     pending: dict[str, deque] = {"colour": deque(), "depth": deque()}
     intrinsics = None
@@ -230,6 +231,15 @@ def _frames(files: list[Path], chosen: dict[str, BagTopic], duration_s: float | 
                             depth_mm=_pixels(depth, "depth", path), intrinsics=intrinsics)
             if on_progress is not None:
                 on_progress(CaptureProgress(count, 0, skipped, elapsed_s, None))
+
+
+def _decoder(path: Path, topic: BagTopic) -> Callable[[bytes], Any]:
+    """The CDR decoder of a topic's messages, from its message definition."""
+    try:
+        return generate_dynamic(topic.type, topic.definition)[topic.type]
+    except Exception as error:  # the definition parser raises many kinds on bad text
+        raise RecordingError(f"{path}: the message definition of {topic.name}'s "
+                             f"{topic.type} cannot be read ({error})") from error
 
 
 def _paired(colours: deque, depths: deque) -> tuple[list[tuple], int]:
