@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import sqlite3
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +30,7 @@ from softforce_cli.io.ros2_bag import (
     iter_bag_frames,
 )
 from tests.cli_runner import assert_one_line_error, softforce
+from tests.test_fuzz_harness import call_reader, classify, fuzz_cases, report, run_cli
 
 NS = "/camera/camera"
 T0 = 1_700_000_000_000_000_000
@@ -187,3 +189,27 @@ def test_record_converts_a_ros2_bag_with_its_actuation(tmp_path):
                                [m for m in bag_messages(2) if "aligned" not in m[0]])
     refused = softforce("record", "--from", depthless, "-o", tmp_path / "y.mcap")
     assert_one_line_error(refused, "align_depth.enable:=true")
+
+
+@pytest.mark.parametrize("write", [write_mcap_bag, write_db3_bag])
+def test_damaged_bags_never_crash(tmp_path, write):
+    """Cut short or with bytes flipped, a bag converts its readable frames or stops in one
+    error line, never a traceback (the fuzz harness' rules, tests/test_fuzz_harness.py)."""
+    suffix = ".mcap" if write is write_mcap_bag else ".db3"
+    whole = write(tmp_path / f"whole{suffix}", bag_messages(4)).read_bytes()
+    rng = np.random.default_rng(5)
+    counts = Counter()
+    for case in range(fuzz_cases(12)):
+        damaged = bytearray(whole)
+        if case % 2:
+            for index in rng.integers(0, len(whole), 30):
+                damaged[index] ^= 0xFF
+        else:
+            del damaged[int(rng.integers(10, len(whole))):]
+        path = tmp_path / f"damaged{case}{suffix}"
+        path.write_bytes(bytes(damaged))
+        counts[f"frames {call_reader(lambda p: list(iter_bag_frames(p)), path)}"] += 1
+        out = tmp_path / f"out{case}.mcap"
+        counts[f"record {classify(run_cli('record', '--from', path, '-o', out))}"] += 1
+    report(f"ROS 2 bag ({suffix})", counts)
+    assert sum(counts.values()) == 2 * fuzz_cases(12)

@@ -17,7 +17,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
 
-import numpy as np
 from mcap.records import Channel, Message, Metadata, Schema
 from mcap.summary import Summary
 from mcap.writer import MCAP0_MAGIC
@@ -340,7 +339,7 @@ class _FrameAssembler:
                                  self.schemas[fmt.COLOR_TOPIC])
         depth = fmt.decode_depth(parts[fmt.DEPTH_TOPIC], f"depth image of {where}",
                                  self.schemas[fmt.DEPTH_TOPIC])
-        _check_sizes(where, color, depth, self.intrinsics)
+        fmt.check_sizes(where, color, depth, self.intrinsics)
         markers = parts.get(fmt.MARKERS_TOPIC)
         self.frames += 1
         return RgbdFrame(
@@ -377,22 +376,6 @@ class _FrameAssembler:
                 RecordingWarning,
                 stacklevel=3,
             )
-
-
-def _check_sizes(
-    where: str, color: np.ndarray, depth: np.ndarray, intrinsics: CameraIntrinsics
-) -> None:
-    color_hw, depth_hw = color.shape[:2], depth.shape
-    if color_hw != depth_hw:
-        raise RecordingError(
-            f"{where}: depth is {depth_hw[1]}x{depth_hw[0]} but colour is "
-            f"{color_hw[1]}x{color_hw[0]}; depth must be aligned to colour"
-        )
-    if (intrinsics.height, intrinsics.width) != color_hw:
-        raise RecordingError(
-            f"{where}: camera_info is for {intrinsics.width}x{intrinsics.height} images but "
-            f"colour is {color_hw[1]}x{color_hw[0]}"
-        )
 
 
 def read_summary(path: Path) -> RecordingSummary:

@@ -226,6 +226,23 @@ def decode_camera_info(data: bytes, what: str = "camera_info"
                              calibration.distortion_model, calibration.D, what)
 
 
+def check_sizes(where: str, color: np.ndarray, depth: np.ndarray,
+                intrinsics: CameraIntrinsics) -> None:
+    """RecordingError unless a frame's colour (h, w, 3), depth (h, w) and calibration are of
+    one size."""
+    color_hw, depth_hw = color.shape[:2], depth.shape
+    if color_hw != depth_hw:
+        raise RecordingError(
+            f"{where}: depth is {depth_hw[1]}x{depth_hw[0]} but colour is "
+            f"{color_hw[1]}x{color_hw[0]}; depth must be aligned to colour"
+        )
+    if (intrinsics.height, intrinsics.width) != color_hw:
+        raise RecordingError(
+            f"{where}: camera_info is for {intrinsics.width}x{intrinsics.height} images but "
+            f"colour is {color_hw[1]}x{color_hw[0]}"
+        )
+
+
 # The pixels of an image message, whatever its schema: foxglove's RawImage and ROS's
 # sensor_msgs/Image share encoding, width, height, step and data; foxglove's CompressedImage
 # and ROS's share format and data.

@@ -31,7 +31,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap_ros2._dynamic import generate_dynamic
 
@@ -137,19 +136,22 @@ def bag_topics(path: Path) -> list[BagTopic]:
         with _sqlite(path) as connection:
             try:
                 rows = connection.execute("SELECT name, type FROM topics").fetchall()
-            except sqlite3.DatabaseError as error:
+            except (sqlite3.Error, UnicodeDecodeError) as error:
                 raise RecordingError(f"{path} is not a rosbag2 database ({error})") from error
-        return [BagTopic(name, kind, DEFINITIONS.get(kind, "")) for name, kind in rows]
+        return [BagTopic(name, kind, DEFINITIONS.get(kind, "")) for name, kind in rows
+                if isinstance(name, str) and isinstance(kind, str)]  # not a damaged row
     try:
         with open(path, "rb") as stream:
             summary = make_reader(stream).get_summary()
-    except (OSError, McapError, ValueError) as error:
+    except MemoryError:
+        raise
+    except Exception as error:  # mcap's reader raises many kinds on a damaged file
         raise RecordingError(f"{path} is not a readable MCAP file ({error})") from error
     if summary is None:
         raise RecordingError(f"{path} has no summary section; it was not finished")
     schemas = summary.schemas
     return [BagTopic(channel.topic, schemas[channel.schema_id].name,
-                     schemas[channel.schema_id].data.decode())
+                     schemas[channel.schema_id].data.decode(errors="replace"))
             for channel in summary.channels.values()
             if channel.message_encoding == "cdr" and channel.schema_id in schemas
             and schemas[channel.schema_id].encoding == "ros2msg"]
@@ -227,8 +229,11 @@ def _frames(files: list[Path], chosen: dict[str, BagTopic], duration_s: float | 
                 return
             last_ns = time_ns
             count += 1
-            yield RgbdFrame(time_ns=time_ns, color=_pixels(colour, "colour", path),
-                            depth_mm=_pixels(depth, "depth", path), intrinsics=intrinsics)
+            color, depth_mm = _pixels(colour, "colour", path), _pixels(depth, "depth", path)
+            fmt.check_sizes(f"{path}: the frame stamped {time_ns} ns", color, depth_mm,
+                            intrinsics)
+            yield RgbdFrame(time_ns=time_ns, color=color, depth_mm=depth_mm,
+                            intrinsics=intrinsics)
             if on_progress is not None:
                 on_progress(CaptureProgress(count, 0, skipped, elapsed_s, None))
 
@@ -276,22 +281,24 @@ def _stamp_ns(message) -> int:
 def _bag_messages(files: list[Path], topics: list[str]) -> Iterator[tuple[Path, str, bytes]]:
     """(file, topic, CDR bytes) of the given topics, file by file, in log-time order."""
     for path in files:
-        if path.suffix.lower() == ".db3":
-            with _sqlite(path) as connection:
-                marks = ",".join("?" * len(topics))
-                for name, data in connection.execute(
-                        "SELECT topics.name, messages.data FROM messages JOIN topics ON "
-                        f"messages.topic_id = topics.id WHERE topics.name IN ({marks}) "
-                        "ORDER BY messages.timestamp", topics):
-                    yield path, name, data
-            continue
-        with open(path, "rb") as stream:
-            try:
+        try:
+            if path.suffix.lower() == ".db3":
+                with _sqlite(path) as connection:
+                    marks = ",".join("?" * len(topics))
+                    for name, data in connection.execute(
+                            "SELECT topics.name, messages.data FROM messages JOIN topics ON "
+                            f"messages.topic_id = topics.id WHERE topics.name IN ({marks}) "
+                            "ORDER BY messages.timestamp", topics):
+                        yield path, name, data
+                continue
+            with open(path, "rb") as stream:
                 for _, channel, message in make_reader(stream).iter_messages(
                         topics=topics, log_time_order=True):
                     yield path, channel.topic, message.data
-            except McapError as error:
-                raise RecordingError(f"{path} is damaged ({error})") from error
+        except (MemoryError, RecordingError, GeneratorExit):
+            raise
+        except Exception as error:  # sqlite's and mcap's readers on a damaged file
+            raise RecordingError(f"{path} is damaged ({error})") from error
 
 
 def _sqlite(path: Path) -> closing[sqlite3.Connection]:
