@@ -35,7 +35,7 @@ bench: setup
 # The fuzz suites with SOFTFORCE_FUZZ_CASES inputs of each kind (default 1000, ~20 min).
 fuzz: setup
 	SOFTFORCE_FUZZ_CASES=$${SOFTFORCE_FUZZ_CASES:-1000} $(BIN)/pytest -q tests/test_fuzz_harness.py \
-		tests/test_fuzz_recordings.py tests/test_fuzz_inputs.py
+		tests/test_fuzz_recordings.py tests/test_fuzz_inputs.py "tests/test_ros2_bag.py::test_damaged_bags_never_crash"
 
 clean:
 	rm -rf $(OUT) .pytest_cache .ruff_cache
