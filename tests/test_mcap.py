@@ -355,6 +355,7 @@ def write_custom(
     topics=fmt.FRAME_TOPICS,
     extra=True,
     depth_size=None,
+    depth_delay_ns=0,
     color_format=None,
     depth_format=None,
     compressed_data=None,
@@ -367,7 +368,7 @@ def write_custom(
     """A recording written with the bare mcap writer: extra topics, missing or odd ones,
     colour and depth in other encodings (an unknown one relabels the rgb8 bytes), or as
     foxglove.CompressedImage of color_format and depth_format (compressed_data: its bytes
-    instead of the image's)."""
+    instead of the image's); depth_delay_ns: depth logged that much after the rest."""
     with open(path, "wb") as stream:
         writer = McapWriter(stream)
         writer.start()
@@ -428,7 +429,8 @@ def write_custom(
                 data.pop(fmt.ACTUATION_TOPIC)
             for topic in topics:
                 if topic in data:
-                    writer.add_message(ids[topic], t, data[topic], t)
+                    at = t + depth_delay_ns if topic == fmt.DEPTH_TOPIC else t
+                    writer.add_message(ids[topic], at, data[topic], at)
             if extra:
                 writer.add_message(tf, t, b'{"x": 2}', t)
         writer.finish()
@@ -559,6 +561,25 @@ def test_compressed_images_are_read(tmp_path, color_format, depth_format):
             assert error.max() == 0
         else:
             assert 0 < error.mean() < 3
+
+
+@pytest.mark.parametrize("delay_ns", [3_000_000, -5_000_000, 15_000_000])
+def test_images_logged_at_their_own_times_pair_up(tmp_path, delay_ns):
+    """Another tool logs each image when it receives it: a depth image logged within 16 ms of
+    its colour image (before or after) joins it, at the colour image's time."""
+    frames = make_frames(4)
+    path = tmp_path / "apart.mcap"
+    write_custom(path, frames, depth_delay_ns=delay_ns)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RecordingWarning)  # nothing incomplete
+        got = list(iter_frames(path))
+    assert len(got) == 4
+    for g, w in zip(got, frames, strict=True):
+        assert_same_frame(g, w)
+    # half a frame from both colour images around it: each image alone, all incomplete
+    write_custom(tmp_path / "far.mcap", frames, depth_delay_ns=16_700_000)
+    with pytest.raises(RecordingError, match="has no complete frame"):
+        list(iter_frames(tmp_path / "far.mcap"))
 
 
 @pytest.mark.parametrize("kind", ["jpeg", "png"])

@@ -281,20 +281,60 @@ def _scanned_messages(
 def frames_from_messages(
     path: Path, messages: Iterator[tuple[str, int, bytes, str]]
 ) -> Iterator[RgbdFrame]:
-    """Group messages by log time into frames; skip (and count) groups missing an image."""
+    """Group messages by log time into frames (_paired_groups); skip (and count) groups
+    missing an image."""
     assembler = _FrameAssembler(path)
+    for time_ns, parts in _paired_groups(_log_time_groups(messages, assembler.schemas)):
+        if (frame := assembler.assemble(time_ns, parts)) is not None:
+            yield frame
+    assembler.finish()
+
+
+def _log_time_groups(messages: Iterator[tuple[str, int, bytes, str]], schemas: dict[str, str]
+                     ) -> Iterator[tuple[int, dict[str, bytes]]]:
+    """(log time, {topic: data}) of each run of messages sharing a log time; each topic's
+    schema name noted into `schemas`."""
     group_time: int | None = None
     parts: dict[str, bytes] = {}
     for topic, log_time, data, schema in messages:
-        assembler.schemas[topic] = schema
+        schemas[topic] = schema
         if log_time != group_time:
-            if parts and (frame := assembler.assemble(group_time, parts)) is not None:
-                yield frame
+            if parts:
+                yield group_time, parts
             group_time, parts = log_time, {}
         parts[topic] = data
-    if parts and (frame := assembler.assemble(group_time, parts)) is not None:
-        yield frame
-    assembler.finish()
+    if parts:
+        yield group_time, parts
+
+
+def _paired_groups(groups: Iterator[tuple[int, dict[str, bytes]]]
+                   ) -> Iterator[tuple[int, dict[str, bytes]]]:
+    """Log-time groups, a group holding one of the two images joined by the next one that
+    holds the other within fmt.IMAGE_PAIR_TOLERANCE_NS (another tool may log each image at
+    its own receive time), and by calibration or inputs logged in between; the pair takes
+    the colour image's time. softforce's own frames share one log time and pass as they are."""
+    images = {fmt.COLOR_TOPIC, fmt.DEPTH_TOPIC}
+    half: tuple[int, dict[str, bytes]] | None = None
+    for time_ns, parts in groups:
+        if half is not None:
+            half_time, half_parts = half
+            near = time_ns - half_time <= fmt.IMAGE_PAIR_TOLERANCE_NS
+            if near and not parts.keys() & images:
+                half_parts.update(parts)  # calibration or inputs before the other image
+                continue
+            if near and parts.keys() & images == images - half_parts.keys():
+                yield (half_time if fmt.COLOR_TOPIC in half_parts else time_ns,
+                       {**half_parts, **parts})
+                half = None
+                continue
+            yield half
+            half = None
+        if len(parts.keys() & images) == 1:
+            half = (time_ns, parts)
+        else:
+            yield time_ns, parts
+    if half is not None:
+        yield half
 
 
 class _FrameAssembler:

@@ -43,6 +43,10 @@ OPTICAL_FRAME_ID = "camera_color_optical_frame"
 # the image topics' schemas: raw (softforce's own) or compressed, as another tool may write
 RAW_IMAGE = "foxglove.RawImage"
 COMPRESSED_IMAGE = "foxglove.CompressedImage"
+# Another tool's colour and depth images of one frame, each logged or stamped at its own
+# time: half a frame at 30 fps apart at most (realsense-ros stamps an aligned depth image
+# with the depth frame's time, a few milliseconds from the colour frame's)
+IMAGE_PAIR_TOLERANCE_NS = 16_000_000
 # colour may be lossy; depth only png (16-bit greyscale, mm)
 COMPRESSED_COLOR_FORMATS = ("jpeg", "png", "webp")
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -10,9 +10,9 @@ such a file into the frames `softforce record --from` writes into a softforce re
   the one ending in `aligned_depth_to_color/image_raw` (or `.../compressedDepth`), the
   calibration the `CameraInfo` ending in `color/camera_info`;
 - a colour and a depth image make a frame when their header stamps lie within
-  PAIR_TOLERANCE_NS of each other (the colour's stamp is the frame's time); a colour image
-  without such a depth image, or a depth image without a colour one, is skipped and counted,
-  as are frames before the first calibration;
+  recording_format.IMAGE_PAIR_TOLERANCE_NS (16 ms) of each other (the colour's stamp is the
+  frame's time); a colour image without such a depth image, or a depth image without a
+  colour one, is skipped and counted, as are frames before the first calibration;
 - the calibration holds until the next one (its lens, camera.lens, goes into the recording).
 
 A `.db3` that librealsense wrote (its topics under `/device_0/`) is not a ROS 2 bag of
@@ -43,9 +43,6 @@ from softforce_cli.io.mcap_reader import RecordingWarning
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
-# half a frame at 30 fps: realsense-ros stamps the aligned depth with the depth frame's time,
-# a few milliseconds from the colour frame's when the two sensors run at the same rate
-PAIR_TOLERANCE_NS = 16_000_000
 # the message definitions (ROS 2's sensor_msgs, unchanged since Foxy), for bags that do not
 # carry them: a .db3 before ROS 2 Iron
 _HEADER = """
@@ -249,12 +246,13 @@ def _decoder(path: Path, topic: BagTopic) -> Callable[[bytes], Any]:
 
 def _paired(colours: deque, depths: deque) -> tuple[list[tuple], int]:
     """The (colour, depth) pairs the pending images (stamp, message, type), each stream in
-    stamp order, make: a colour and a depth image within PAIR_TOLERANCE_NS, taken off the
-    queues; and how many images were passed over, no image of the other stream near them."""
+    stamp order, make: a colour and a depth image within fmt.IMAGE_PAIR_TOLERANCE_NS, taken
+    off the queues; and how many images were passed over, no image of the other stream near
+    them."""
     pairs, dropped = [], 0
     while colours and depths:
         gap = colours[0][0] - depths[0][0]
-        if abs(gap) <= PAIR_TOLERANCE_NS:
+        if abs(gap) <= fmt.IMAGE_PAIR_TOLERANCE_NS:
             pairs.append((colours.popleft(), depths.popleft()))
         else:
             (colours if gap < 0 else depths).popleft()
