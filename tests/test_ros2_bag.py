@@ -183,6 +183,10 @@ def test_record_converts_a_ros2_bag_with_its_actuation(tmp_path):
     assert len(frames) == 4 and read_summary(out).intrinsics.distortion is not None
     assert [list(f.actuation.values) for f in frames] == [[1.0, 2.0], [1.0, 2.0],
                                                           [3.0, 4.0], [3.0, 4.0]]
+    # sensed as it is, the bag says how to convert it
+    read_as_recording = softforce("record", "info", bag)
+    assert_one_line_error(read_as_recording, "It is a ROS 2 bag: convert it with softforce "
+                                             "record --from bag.mcap -o REC.mcap")
     folder_missing = softforce("record", "--from", tmp_path / "none", "-o", tmp_path / "x.mcap")
     assert_one_line_error(folder_missing, "does not exist")
     depthless = write_mcap_bag(tmp_path / "depthless.mcap",

@@ -215,9 +215,12 @@ def check_channels(
     present = {ch.topic for ch in ours.values()}
     for topic in fmt.REQUIRED_TOPICS:
         if topic not in present:
+            bag = any(ch.message_encoding == "cdr" for ch in channels.values())
             raise RecordingError(
                 f"{path} has no {topic} topic; a softforce recording needs "
-                f"{', '.join(fmt.REQUIRED_TOPICS)}"
+                f"{', '.join(fmt.REQUIRED_TOPICS)}" + (
+                    ". It is a ROS 2 bag: convert it with softforce record --from "
+                    f"{path.name} -o REC.mcap" if bag else "")
             )
     for channel in ours.values():
         _check_schema(path, channel, schemas.get(channel.schema_id))
