@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from mcap.reader import make_reader
 from mcap_ros2._dynamic import generate_dynamic
 
@@ -260,7 +261,9 @@ def _paired(colours: deque, depths: deque) -> tuple[list[tuple], int]:
     return pairs, dropped
 
 
-def _pixels(item: tuple, role: str, path: Path):
+def _pixels(item: tuple, role: str, path: Path) -> np.ndarray:
+    """A pending image (stamp, message, type) -> (h, w, 3) uint8 RGB colour or (h, w)
+    uint16 depth in mm."""
     _, message, kind = item
     what = f"{path}: the {role} image stamped {item[0]} ns"
     if getattr(message, "is_bigendian", 0):
@@ -272,6 +275,7 @@ def _pixels(item: tuple, role: str, path: Path):
 
 
 def _stamp_ns(message) -> int:
+    """A ROS message's header stamp in nanoseconds."""
     stamp = message.header.stamp
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
