@@ -16,8 +16,9 @@ the figures in docs/figures/, which docs/sensing_studies.md quotes.
   follows), and frames without contact (phantoms).
 - A sweep of feature count (25, 51, 101) on the probes: error and frame rate.
 - `--scenario FILE`: any scenario (benchmarks/scenarios/: another actuation, an oblique
-  camera, large deformations, many contacts, contacts a camera above hides), sensed with
-  the truth's camera pose and tared on its first 3 frames.
+  camera, large deformations, many contacts, contacts a camera above hides, lamps, a glossy
+  robot, stickers, a lens that distorts), sensed with the truth's camera pose and tared on
+  its first 3 frames.
 - `--settings FILE`: sense (and fit the modulus) with a settings file's thresholds
   (docs/sensing.md, "Settings"); outputs and results are named with its stem.
 - `--converged`: the truth closer to the mesh-converged body (P2-P0 on the 4.8 mm mesh of
