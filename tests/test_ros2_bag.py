@@ -54,12 +54,13 @@ def depth_of(i: int) -> np.ndarray:
 
 
 def bag_messages(frames: int, *, depth_offset_ns: int = 3_000_000, skip_depth=(),
-                 compressed=False, namespace=NS) -> list[tuple[str, str, int, dict]]:
+                 compressed=False, namespace=NS, period=PERIOD
+                 ) -> list[tuple[str, str, int, dict]]:
     """(topic, type, log time, message) as realsense-ros publishes them: colour (rgb8, or
     jpeg when compressed), aligned depth 16UC1 stamped depth_offset_ns later, camera_info."""
     messages = []
     for i in range(frames):
-        t = T0 + i * PERIOD
+        t = T0 + i * period
         messages.append((f"{namespace}/color/camera_info", CAMERA_INFO, t, {
             "header": header(t), "height": H, "width": W, "distortion_model": "plumb_bob",
             "d": D, "k": K, "r": [1.0, 0, 0, 0, 1, 0, 0, 0, 1],
@@ -143,6 +144,22 @@ def test_a_bag_folder_with_compressed_colour_reads_too(tmp_path):
     frames = list(iter_bag_frames(folder))
     assert len(frames) == 3
     np.testing.assert_array_equal(frames[2].color, colour_of(2))
+
+
+def test_at_90_fps_each_colour_takes_its_nearest_depth(tmp_path):
+    """Frames 11 ms apart, shorter than the 16 ms a pair may span: a depth image 8 ms before
+    the first colour one (its own colour image not in the bag) is passed over for the one
+    3 ms after it, and every frame keeps its own depth."""
+    period = 11_111_111
+    messages = bag_messages(4, period=period)
+    early = T0 - 8_000_000
+    messages.append((f"{NS}/aligned_depth_to_color/image_raw", IMAGE, early, {
+        "header": header(early), "height": H, "width": W, "encoding": "16UC1",
+        "is_bigendian": 0, "step": 2 * W, "data": depth_of(99).tobytes()}))
+    frames = list(iter_bag_frames(write_mcap_bag(tmp_path / "fast.mcap", messages)))
+    assert [f.time_ns for f in frames] == [T0 + i * period for i in range(4)]
+    for i, frame in enumerate(frames):
+        np.testing.assert_array_equal(frame.depth_mm, depth_of(i))
 
 
 def test_depth_half_a_frame_from_every_colour_is_not_paired(tmp_path):

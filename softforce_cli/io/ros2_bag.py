@@ -9,10 +9,10 @@ such a file into the frames `softforce record --from` writes into a softforce re
   `/camera/camera/color/image_raw`; `.../compressed` when only that was recorded), the depth
   the one ending in `aligned_depth_to_color/image_raw` (or `.../compressedDepth`), the
   calibration the `CameraInfo` ending in `color/camera_info`;
-- a colour and a depth image make a frame when their header stamps lie within
-  recording_format.IMAGE_PAIR_TOLERANCE_NS (16 ms) of each other (the colour's stamp is the
-  frame's time); a colour image without such a depth image, or a depth image without a
-  colour one, is skipped and counted, as are frames before the first calibration;
+- a colour and a depth image make a frame when each is the other's nearest by header stamp
+  and they lie within recording_format.IMAGE_PAIR_TOLERANCE_NS (16 ms) of each other (the
+  colour's stamp is the frame's time); an image without such a partner is skipped and
+  counted, as are frames before the first calibration;
 - the calibration holds until the next one (its lens, camera.lens, goes into the recording).
 
 A `.db3` that librealsense wrote (its topics under `/device_0/`) is not a ROS 2 bag of
@@ -36,6 +36,7 @@ from mcap.reader import make_reader
 from mcap_ros2._dynamic import generate_dynamic
 
 from softforce_cli.camera.frame import RgbdFrame
+from softforce_cli.camera.intrinsics import CameraIntrinsics
 from softforce_cli.camera.realsense import CaptureProgress
 from softforce_cli.errors import RecordingError
 from softforce_cli.io import recording_format as fmt
@@ -190,31 +191,9 @@ def _chosen_topics(path: Path, topics: list[BagTopic]) -> dict[str, BagTopic]:
 
 def _frames(files: list[Path], chosen: dict[str, BagTopic], duration_s: float | None,
             on_progress: ProgressCallback | None) -> Iterator[RgbdFrame]:
-    decoders = {topic.name: _decoder(files[0], topic) for topic in chosen.values()}
-    roles = {topic.name: role for role, topic in chosen.items()}
-    pending: dict[str, deque] = {"colour": deque(), "depth": deque()}
-    intrinsics = None
     count = skipped = 0
     first_ns = last_ns = None
-    for path, name, data in _bag_messages(files, list(roles)):
-        role = roles[name]
-        what = f"{path}: a {role} message on {name}"
-        try:
-            message = decoders[name](data)
-        except Exception as error:  # the CDR reader raises many kinds on damaged data
-            raise RecordingError(f"{what} is not a valid {chosen[role].type} ({error})"
-                                 ) from error
-        if role == "camera_info":
-            told = intrinsics is not None
-            intrinsics, unread = fmt.camera_intrinsics(message.width, message.height,
-                                                       message.k, message.distortion_model,
-                                                       message.d, what)
-            if unread is not None and not told:
-                warnings.warn(f"{path}: camera_info's {unread}: its images are read through "
-                              "K alone", RecordingWarning, stacklevel=2)
-            continue
-        pending[role].append((_stamp_ns(message), message, chosen[role].type))
-        pairs, dropped = _paired(pending["colour"], pending["depth"])
+    for path, intrinsics, pairs, dropped in _image_pairs(files, chosen):
         skipped += dropped
         for colour, depth in pairs:
             time_ns = colour[0]
@@ -236,6 +215,37 @@ def _frames(files: list[Path], chosen: dict[str, BagTopic], duration_s: float | 
                 on_progress(CaptureProgress(count, 0, skipped, elapsed_s, None))
 
 
+def _image_pairs(files: list[Path], chosen: dict[str, BagTopic]
+                 ) -> Iterator[tuple[Path, CameraIntrinsics | None, list[tuple], int]]:
+    """(file, the calibration then, the image pairs _paired made, the images it passed over)
+    after each image message of the bag, and once more at its end."""
+    decoders = {topic.name: _decoder(files[0], topic) for topic in chosen.values()}
+    roles = {topic.name: role for role, topic in chosen.items()}
+    pending: dict[str, deque] = {"colour": deque(), "depth": deque()}
+    intrinsics = None
+    path = files[0]
+    for path, name, data in _bag_messages(files, list(roles)):
+        role = roles[name]
+        what = f"{path}: a {role} message on {name}"
+        try:
+            message = decoders[name](data)
+        except Exception as error:  # the CDR reader raises many kinds on damaged data
+            raise RecordingError(f"{what} is not a valid {chosen[role].type} ({error})"
+                                 ) from error
+        if role == "camera_info":
+            told = intrinsics is not None
+            intrinsics, unread = fmt.camera_intrinsics(message.width, message.height,
+                                                       message.k, message.distortion_model,
+                                                       message.d, what)
+            if unread is not None and not told:
+                warnings.warn(f"{path}: camera_info's {unread}: its images are read through "
+                              "K alone", RecordingWarning, stacklevel=2)
+            continue
+        pending[role].append((_stamp_ns(message), message, chosen[role].type))
+        yield path, intrinsics, *_paired(pending["colour"], pending["depth"])
+    yield path, intrinsics, *_paired(pending["colour"], pending["depth"], ended=True)
+
+
 def _decoder(path: Path, topic: BagTopic) -> Callable[[bytes], Any]:
     """The CDR decoder of a topic's messages, from its message definition."""
     try:
@@ -245,18 +255,26 @@ def _decoder(path: Path, topic: BagTopic) -> Callable[[bytes], Any]:
                              f"{topic.type} cannot be read ({error})") from error
 
 
-def _paired(colours: deque, depths: deque) -> tuple[list[tuple], int]:
+def _paired(colours: deque, depths: deque, ended: bool = False) -> tuple[list[tuple], int]:
     """The (colour, depth) pairs the pending images (stamp, message, type), each stream in
-    stamp order, make: a colour and a depth image within fmt.IMAGE_PAIR_TOLERANCE_NS, taken
-    off the queues; and how many images were passed over, no image of the other stream near
-    them."""
+    stamp order, make: each the nearest of the other stream's, within
+    fmt.IMAGE_PAIR_TOLERANCE_NS, taken off the queues; and how many images were passed over,
+    no image of the other stream near them. The earlier of the two first images waits for
+    its stream's next one, which may lie nearer the other (at 60-90 fps a frame is shorter
+    than the tolerance), unless the bag has ended."""
     pairs, dropped = [], 0
     while colours and depths:
         gap = colours[0][0] - depths[0][0]
-        if abs(gap) <= fmt.IMAGE_PAIR_TOLERANCE_NS:
+        earlier, other = (depths, colours) if gap > 0 else (colours, depths)
+        if len(earlier) < 2 and not ended:
+            break
+        if len(earlier) > 1 and abs(earlier[1][0] - other[0][0]) < abs(gap):
+            earlier.popleft()  # its next image is the nearer one
+            dropped += 1
+        elif abs(gap) <= fmt.IMAGE_PAIR_TOLERANCE_NS:
             pairs.append((colours.popleft(), depths.popleft()))
         else:
-            (colours if gap < 0 else depths).popleft()
+            earlier.popleft()
             dropped += 1
     return pairs, dropped
 
