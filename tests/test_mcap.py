@@ -582,6 +582,36 @@ def test_images_logged_at_their_own_times_pair_up(tmp_path, delay_ns):
         list(iter_frames(tmp_path / "far.mcap"))
 
 
+def test_at_90_fps_an_image_pairs_with_its_nearest(tmp_path):
+    """Frames 11 ms apart, each depth logged 3 ms after its colour, and a stray depth image
+    8 ms before the first colour (its own colour not in the file): the stray one is alone
+    (incomplete) and every colour keeps its own depth."""
+    frames = [replace(f, time_ns=T0_NS + i * 11_111_111) for i, f in enumerate(make_frames(4))]
+    path = tmp_path / "fast.mcap"
+    with open(path, "wb") as stream:
+        writer = McapWriter(stream)
+        writer.start()
+        image, info = register_schema(writer, RawImage), register_schema(writer, CameraCalibration)
+        ids = {topic: writer.register_channel(topic, "protobuf", schema) for topic, schema in
+               ((fmt.COLOR_TOPIC, image), (fmt.DEPTH_TOPIC, image), (fmt.CAMERA_INFO_TOPIC, info))}
+        stray = frames[0].time_ns - 8_000_000
+        writer.add_message(ids[fmt.DEPTH_TOPIC], stray, fmt.encode_depth(
+            np.zeros((48, 64), np.uint16), stray), stray)
+        for frame in frames:
+            t = frame.time_ns
+            writer.add_message(ids[fmt.CAMERA_INFO_TOPIC], t,
+                               fmt.encode_camera_info(frame.intrinsics, t), t)
+            writer.add_message(ids[fmt.COLOR_TOPIC], t, fmt.encode_color(frame.color, t), t)
+            writer.add_message(ids[fmt.DEPTH_TOPIC], t + 3_000_000,
+                               fmt.encode_depth(frame.depth_mm, t), t + 3_000_000)
+        writer.finish()
+    with pytest.warns(RecordingWarning, match="1 incomplete"):
+        got = list(iter_frames(path))
+    assert [g.time_ns for g in got] == [f.time_ns for f in frames]
+    for g, w in zip(got, frames, strict=True):
+        np.testing.assert_array_equal(g.depth_mm, w.depth_mm)
+
+
 @pytest.mark.parametrize("kind", ["jpeg", "png"])
 def test_damaged_compressed_images_are_refused_in_a_line(tmp_path, kind):
     """Truncated or bit-flipped compressed colour: a RecordingError, never Pillow's own."""

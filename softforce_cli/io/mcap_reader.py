@@ -315,17 +315,25 @@ def _paired_groups(groups: Iterator[tuple[int, dict[str, bytes]]]
     """Log-time groups, a group holding one of the two images joined by the next one that
     holds the other within fmt.IMAGE_PAIR_TOLERANCE_NS (another tool may log each image at
     its own receive time), and by calibration or inputs logged in between; the pair takes
-    the colour image's time. softforce's own frames share one log time and pass as they are."""
+    the colour image's time. Not when the group after it holds an image like the first one's
+    nearer to it (frames shorter than the tolerance, at 60-90 fps): then the first is alone.
+    softforce's own frames share one log time and pass as they are."""
     images = {fmt.COLOR_TOPIC, fmt.DEPTH_TOPIC}
     half: tuple[int, dict[str, bytes]] | None = None
-    for time_ns, parts in groups:
+    groups = iter(groups)
+    ahead = next(groups, None)
+    while ahead is not None:
+        (time_ns, parts), ahead = ahead, next(groups, None)
         if half is not None:
             half_time, half_parts = half
             near = time_ns - half_time <= fmt.IMAGE_PAIR_TOLERANCE_NS
             if near and not parts.keys() & images:
                 half_parts.update(parts)  # calibration or inputs before the other image
                 continue
-            if near and parts.keys() & images == images - half_parts.keys():
+            kind = half_parts.keys() & images
+            nearer = (ahead is not None and ahead[1].keys() & images == kind
+                      and ahead[0] - time_ns < time_ns - half_time)
+            if near and parts.keys() & images == images - kind and not nearer:
                 yield (half_time if fmt.COLOR_TOPIC in half_parts else time_ns,
                        {**half_parts, **parts})
                 half = None
