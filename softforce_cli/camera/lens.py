@@ -23,6 +23,7 @@ being 0 (a `plumb_bob` D of 4 values has no k3).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,14 +58,16 @@ class LensDistortion:
     coefficients: tuple[float, ...]
 
     @classmethod
-    def from_camera_info(cls, model: str, coefficients) -> LensDistortion | None:
+    def from_camera_info(cls, model: str, coefficients: Iterable[float]
+                         ) -> LensDistortion | None:
         """The distortion a camera_info names; None when every coefficient is 0 (whatever
         the model, the image is then a pinhole one). LensModelError for an unknown model or
         more non-zero coefficients than it takes (librealsense pads its 4 to 5 with a 0)."""
         values = tuple(float(c) for c in coefficients)
         if not any(values):
             return None
-        name = ALIASES.get(model.strip().lower(), model.strip().lower())
+        name = model.strip().lower()
+        name = ALIASES.get(name, name)
         if name not in COEFFICIENT_COUNTS:
             known = ", ".join([*COEFFICIENT_COUNTS, *ALIASES])
             raise LensModelError(f"distortion model {model!r} is not one softforce knows "

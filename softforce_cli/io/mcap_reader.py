@@ -371,10 +371,8 @@ class _FrameAssembler:
                                                              where)
             if unread is not None and not self.distortion_told:
                 self.distortion_told = True
-                warnings.warn(
-                    f"{self.path}: camera_info's {unread}: its images are read through K "
-                    "alone; rectify them first, or expect points off by the distortion at "
-                    "the edges", RecordingWarning, stacklevel=3)
+                warnings.warn(fmt.unread_lens_message(self.path, unread), RecordingWarning,
+                              stacklevel=3)
         if fmt.ACTUATION_TOPIC in parts:  # inputs hold until changed (docs/recordings.md)
             self.actuation = fmt.decode_actuation(parts[fmt.ACTUATION_TOPIC], where)
         if parts.keys() <= {fmt.CAMERA_INFO_TOPIC, fmt.ACTUATION_TOPIC}:

@@ -16,6 +16,9 @@ from __future__ import annotations
 
 import io
 import json
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
@@ -156,7 +159,7 @@ def encode_markers(markers: Markers) -> bytes:
     return json.dumps(document).encode()
 
 
-def _decompressed(message, what: str, formats: tuple[str, ...]) -> Image.Image:
+def _decompressed(message: Any, what: str, formats: tuple[str, ...]) -> Image.Image:
     """A compressed image message decoded (Pillow); RecordingError for a format not in
     formats or data that is not an image of it. ROS's compressedDepth ("16UC1;
     compressedDepth png") puts a 12-byte header before its png, which is skipped."""
@@ -179,7 +182,7 @@ def _decompressed(message, what: str, formats: tuple[str, ...]) -> Image.Image:
     return image
 
 
-def _parse(schema, data: bytes, what: str):
+def _parse(schema: type, data: bytes, what: str) -> Any:
     """Serialized protobuf `data` as a message of the foxglove `schema` class."""
     try:
         return schema.FromString(data)
@@ -188,7 +191,7 @@ def _parse(schema, data: bytes, what: str):
                              ) from error
 
 
-def _image_rows(image: RawImage, bytes_per_pixel: int, what: str) -> np.ndarray:
+def _image_rows(image: Any, bytes_per_pixel: int, what: str) -> np.ndarray:
     """(height, width * bytes_per_pixel) uint8 view of the image rows, padding dropped."""
     row_bytes = image.width * bytes_per_pixel
     if image.width == 0 or image.height == 0 or image.step < row_bytes:
@@ -230,6 +233,13 @@ def decode_camera_info(data: bytes, what: str = "camera_info"
                              calibration.distortion_model, calibration.D, what)
 
 
+def unread_lens_message(path: Path | str, unread: str) -> str:
+    """What a reader says once of a recording whose lens (camera_intrinsics' `unread`) it
+    cannot take."""
+    return (f"{path}: camera_info's {unread}: its images are read through K alone; rectify "
+            "them first, or expect points off by the distortion at the edges")
+
+
 def check_sizes(where: str, color: np.ndarray, depth: np.ndarray,
                 intrinsics: CameraIntrinsics) -> None:
     """RecordingError unless a frame's colour (h, w, 3), depth (h, w) and calibration are of
@@ -251,7 +261,7 @@ def check_sizes(where: str, color: np.ndarray, depth: np.ndarray,
 # sensor_msgs/Image share encoding, width, height, step and data; foxglove's CompressedImage
 # and ROS's share format and data.
 
-def raw_color(image, what: str) -> np.ndarray:
+def raw_color(image: Any, what: str) -> np.ndarray:
     """An uncompressed image message in COLOR_LAYOUTS -> (h, w, 3) uint8 RGB (a copy)."""
     if image.encoding not in COLOR_LAYOUTS:
         raise RecordingError(
@@ -263,7 +273,7 @@ def raw_color(image, what: str) -> np.ndarray:
     return rows.reshape(image.height, image.width, channels)[:, :, rgb].copy()
 
 
-def raw_depth(image, what: str) -> np.ndarray:
+def raw_depth(image: Any, what: str) -> np.ndarray:
     """An uncompressed depth image message (DEPTH_ENCODINGS in mm, or 32FC1 in metres) ->
     (h, w) uint16 mm (a copy; 0 where a float depth is not finite or not positive)."""
     if image.encoding in DEPTH_ENCODINGS:
@@ -280,13 +290,13 @@ def raw_depth(image, what: str) -> np.ndarray:
     )
 
 
-def compressed_color(message, what: str) -> np.ndarray:
+def compressed_color(message: Any, what: str) -> np.ndarray:
     """A compressed image message (COMPRESSED_COLOR_FORMATS) -> (h, w, 3) uint8 RGB."""
     image = _decompressed(message, what, COMPRESSED_COLOR_FORMATS)
     return np.array(image.convert("RGB"), dtype=np.uint8)
 
 
-def compressed_depth(message, what: str) -> np.ndarray:
+def compressed_depth(message: Any, what: str) -> np.ndarray:
     """A compressed depth message (a 16-bit greyscale png in mm) -> (h, w) uint16 mm."""
     image = _decompressed(message, what, ("png",))
     if image.mode not in ("I;16", "I;16B", "I"):
@@ -295,7 +305,8 @@ def compressed_depth(message, what: str) -> np.ndarray:
     return np.array(image, dtype=np.uint16)
 
 
-def camera_intrinsics(width: int, height: int, K, distortion_model: str, D, what: str
+def camera_intrinsics(width: int, height: int, K: Iterable[float], distortion_model: str,
+                      D: Iterable[float], what: str
                       ) -> tuple[CameraIntrinsics, str | None]:
     """A calibration message's image size, camera matrix K (9 values, row by row) and lens
     (camera.lens) -> the intrinsics, and why the distortion could not be taken (an unknown

@@ -238,8 +238,8 @@ def _image_pairs(files: list[Path], chosen: dict[str, BagTopic]
                                                        message.k, message.distortion_model,
                                                        message.d, what)
             if unread is not None and not told:
-                warnings.warn(f"{path}: camera_info's {unread}: its images are read through "
-                              "K alone", RecordingWarning, stacklevel=2)
+                warnings.warn(fmt.unread_lens_message(path, unread), RecordingWarning,
+                              stacklevel=2)
             continue
         pending[role].append((_stamp_ns(message), message, chosen[role].type))
         yield path, intrinsics, *_paired(pending["colour"], pending["depth"])

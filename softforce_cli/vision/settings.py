@@ -97,7 +97,7 @@ class VisionSettings:
     robot_max_shade        : 2.0, the brightest (the colour is learned on the first frame).
 
     edge_bleed_px          : 2, within this many pixels of a depth edge deeper than
-                             edge_jump_mm, a pixel on the near side whose colour is the far
+                             edge_jump_mm, a pixel on either side whose colour is the other
                              side's (by point_colour_threshold) carries a depth that bled or a
                              colour registered off it, and is dropped before the cloud is made
                              (vision.depth_edges): two pixels of either turned the probe's
