@@ -26,11 +26,10 @@ from softforce_cli.diagnosis.pipeline import (
     names_the_mismatch,
     screened_rivals,
     second_keeps_the_first,
-    static_mm,
 )
 from softforce_cli.diagnosis.refit import ExactModel, Refit
 from softforce_cli.diagnosis.report import effect_entry, fitted_robot_toml, group_reason
-from softforce_cli.diagnosis.residuals import Field, point_residuals
+from softforce_cli.diagnosis.residuals import Field, point_residuals, static_mm
 from softforce_cli.diagnosis.selection import (
     UNEXPLAINED_MM,
     clear_improvement,
@@ -516,7 +515,7 @@ def test_an_effect_fitted_on_absolute_residuals_must_explain_what_changes_too(re
 
 
 def test_the_static_residual_is_each_nodes_mean_over_the_frames():
-    """(pipeline.static_mm) Node 0 reads 1 and 3 mm in two frames (mean 2, one point each),
+    """(residuals.static_mm) Node 0 reads 1 and 3 mm in two frames (mean 2, one point each),
     node 1 reads -1 mm twice (three points each), node 2 is unseen: the RMS of the means 2
     and -1 weighted by their 2 and 6 points."""
     field = Field(np.array([0, 1, 0, 1]), np.array([0, 0, 1, 1]),

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from softforce_cli.diagnosis.fitting import node_offsets
-from softforce_cli.diagnosis.pipeline import Diagnosis, node_systematic_mm
-from softforce_cli.diagnosis.residuals import Field
+from softforce_cli.diagnosis.pipeline import Diagnosis
+from softforce_cli.diagnosis.residuals import Field, node_systematic_mm
 from softforce_cli.io.atomic import atomic_path
 from softforce_cli.model.effects import frame_contexts
 

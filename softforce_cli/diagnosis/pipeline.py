@@ -15,6 +15,7 @@ import numpy as np
 
 from softforce_cli.diagnosis.background import Table, observed_table
 from softforce_cli.diagnosis.basis import Basis, build_basis
+from softforce_cli.diagnosis.fit_bracket import FitBracket, fit_bracket
 from softforce_cli.diagnosis.fitting import (
     Candidate,
     HeldOut,
@@ -27,7 +28,13 @@ from softforce_cli.diagnosis.hypotheses import ABSOLUTE, Hypothesis, Inputs, hyp
 from softforce_cli.diagnosis.markers import marker_field, marker_inputs, marker_rms_mm
 from softforce_cli.diagnosis.observations import DiagnosisError, Observations
 from softforce_cli.diagnosis.refit import ExactModel, Refit, refit
-from softforce_cli.diagnosis.residuals import Field, measure
+from softforce_cli.diagnosis.residuals import (
+    Field,
+    measure,
+    node_rms,
+    node_systematic_mm,
+    static_mm,
+)
 from softforce_cli.diagnosis.selection import (
     SAME_FIT_SHARE,
     UNEXPLAINED_MM,
@@ -152,6 +159,11 @@ class Diagnosis:
     within_mesh: list[str] = field(default_factory=list)
     mesh_bracket: ElementBracket | None = None
     mesh_bracket_sought: bool = False  # _mesh_bracket asked once (None then: no bracket)
+    # the two elements' disagreement at a fit that left too much to name on its own
+    # (diagnosis.fit_bracket), and whether what it left is within it: named then, the rest
+    # left to the mesh
+    fit_bracket: FitBracket | None = None
+    mesh_rest: bool = False
     # a camera effect's held-out RMS (mm) with the mesh's allowance, when the first selected
     # effect was a camera's (_camera_with_the_mesh): {camera label: mm}
     camera_with_mesh_mm: dict[str, float] = field(default_factory=dict)
@@ -916,8 +928,14 @@ def _verdict(result: Diagnosis, judge: _Judge, solutions: StateSolutions,
     structured = _structured(after, relative_after, floor)
     fitted = result.selected
     static_beyond = last is not None and leaves_static_beyond(last, static_after, static_limit)
-    partial = last is not None and (static_beyond or not names_the_mismatch(
-        last, relative_before, floor))
+    relative_named = last is not None and names_the_mismatch(last, relative_before, floor)
+    partial = last is not None and (static_beyond or not relative_named)
+    if partial and last.screened.channel == "clouds":
+        # too much left to name it, unless the mesh cannot resolve the body at the fit
+        result.fit_bracket = fit_bracket(judge.exact, last.refit)
+        result.mesh_rest = result.fit_bracket is not None and result.fit_bracket.explains_rest(
+            floor, relative_named, not static_beyond)
+        partial = not result.mesh_rest
     if partial:
         # fitted, accepted, but most of what it fits is something else: not a name to give
         result.partial = [chosen.candidate.label for chosen in fitted]
@@ -995,6 +1013,10 @@ def _verdict(result: Diagnosis, judge: _Judge, solutions: StateSolutions,
         # selected effects left unnamed as within the mesh's discretisation, and what bounds
         # it (the other quadratic element on the mesh; None: not needed)
         "within_mesh_effects": result.within_mesh,
+        # the elements' disagreement at a fit with too much left to name on its own, and
+        # whether that rest is left to the mesh (the fit named); None: not needed
+        "mesh_at_fit": (None if result.fit_bracket is None else
+                        {**result.fit_bracket.as_dict(), "explains_rest": result.mesh_rest}),
         "mesh_bracket": (None if result.mesh_bracket is None else {
             "load_scale": round(result.mesh_bracket.load_scale, 4),
             "surface_rms_mm": round(result.mesh_bracket.surface_rms_mm, 3)}),
@@ -1042,28 +1064,6 @@ def load_scale(chosen: Final, robot: Robot) -> float | None:
     return 1.0 / scale if hypothesis.name == "stiffness_scale" else scale
 
 
-def node_systematic_mm(field: Field, node_count: int) -> tuple[np.ndarray, np.ndarray]:
-    """(n,) per mesh node the point-weighted mean residual over all frames (mm; 0 where
-    unseen), and (n,) the points behind it."""
-    weight = np.bincount(field.node, weights=field.weight, minlength=node_count)
-    total = np.bincount(field.node, weights=field.weight * field.mean_mm, minlength=node_count)
-    return np.divide(total, weight, out=np.zeros(node_count), where=weight > 0), weight
-
-
-def static_mm(field: Field, node_count: int) -> float:
-    """The residual that stays the same in every frame: the RMS over the seen nodes of each
-    node's mean residual (node_systematic_mm), weighted by their points (mm)."""
-    mean, weight = node_systematic_mm(field, node_count)
-    return _node_rms(mean, weight, weight > 0)
-
-
-def _node_rms(mean_mm: np.ndarray, weight: np.ndarray, mask: np.ndarray) -> float:
-    """RMS (mm) of per-node means (n,) over the nodes in mask (n,), weighted by their points
-    (n,); 0 for none."""
-    return (float(np.sqrt(np.average(mean_mm[mask] ** 2, weights=weight[mask])))
-            if mask.any() else 0.0)
-
-
 def _static_limit(result: Diagnosis, solutions: StateSolutions, cache: SolveCache) -> float:
     """The most static residual (static_mm, mm) the selected effects may leave and be named:
     the mesh's own error, the RMS distance between the two quadratic elements on the robot's
@@ -1095,9 +1095,9 @@ def _location(robot: Robot, field: Field, selected: list[Final]) -> dict:
     mean, weight = node_systematic_mm(field, n)
     masks = {name: mask[:n] for name, mask in node_regions(robot).items()}
     seen = weight > 0
-    per_region = {name: _node_rms(mean, weight, mask & seen)
+    per_region = {name: node_rms(mean, weight, mask & seen)
                   for name, mask in masks.items() if (mask & seen).any()}
-    overall = _node_rms(mean, weight, seen)
+    overall = node_rms(mean, weight, seen)
     regions = sorted((r for r, v in per_region.items() if v > REGION_FACTOR * overall),
                      key=lambda r: -per_region[r])
     targets = [h.target for f in selected for h in f.candidate.hypotheses if h.target]

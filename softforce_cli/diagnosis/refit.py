@@ -32,7 +32,7 @@ from softforce_cli.diagnosis.fitting import (
     table_rows,
 )
 from softforce_cli.diagnosis.residuals import Field, measure
-from softforce_cli.diagnosis.solves import SETTINGS, StateSolutions
+from softforce_cli.diagnosis.solves import SETTINGS, StateSolutions, other_element
 from softforce_cli.diagnosis.states import States
 from softforce_cli.errors import SolverError
 from softforce_cli.fem.cables import CableInputs
@@ -40,6 +40,7 @@ from softforce_cli.fem.processes import map_on_cores
 from softforce_cli.fem.statics import Equilibrium, solve_equilibrium
 from softforce_cli.model.effect_physics import fe_model_with_effects
 from softforce_cli.model.effects import (
+    Effect,
     FrameContext,
     effective_actuation,
     effects_of_kind,
@@ -169,11 +170,8 @@ class ExactModel:
         solutions = self.solutions
         robot = solutions.robot
         n = robot.mesh.node_count
-        effects = candidate.effects(values)
-        physics = effects_of_kind(effects, "physics")
+        effects, physics, effective, creep = self._with_effects(candidate, values)
         cables = [spec.name for spec in robot.cable_specs]
-        effective = effective_actuation(effects, self.contexts, cables)
-        creep = any(e.name == "viscoelastic_creep" for e in physics)
         of_frame, firsts = self._groups(creep)
         plate = self._plate_motion(candidate, values)
         predicted = solutions.predicted_mm[self.states.of_frame[firsts]].copy()
@@ -234,6 +232,49 @@ class ExactModel:
             predicted = observed_points_robot(predicted.reshape(-1, 3), sensor,
                                               self.basis.robot_from_camera).reshape(shape)
         return Prediction(predicted, of_frame, solves)
+
+    def other_element(self, candidate: Candidate, values: np.ndarray, prediction: Prediction
+                      ) -> list[np.ndarray | None]:
+        """Per group of `prediction` (this model's at `values`, a candidate without camera
+        effects), the mesh nodes (n, 3) mm of the mesh's other quadratic element
+        (solves.other_element) with the same effects, each solved from this model's
+        equilibrium; None where Newton's method finds no equilibrium near it."""
+        solutions = self.solutions
+        robot = solutions.robot
+        other = other_element(robot)
+        n = robot.mesh.node_count
+        _, physics, effective, creep = self._with_effects(candidate, values)
+        _, firsts = self._groups(creep)
+        controls = tuple(spec.control for spec in robot.cable_specs)
+        # without creep one model serves every group: made here, so that workers inherit it
+        shared = None if creep else fe_model_with_effects(other, physics)
+
+        def solve(g: int) -> np.ndarray | None:
+            first = firsts[g]
+            s = int(self.states.of_frame[first])
+            model = (fe_model_with_effects(other, physics, self.contexts[first]) if creep
+                     else shared)
+            # the prediction keeps the corners: its mid-edge nodes moved as their edges
+            start = solutions.positions_mm[s] + robot.fe_mesh.from_corners(
+                prediction.positions_mm[g] - solutions.predicted_mm[s])
+            try:
+                return solve_equilibrium(model, CableInputs(controls, effective[first]),
+                                         start_mm=start, settings=DIRECT_SETTINGS
+                                         ).positions_mm[:n]
+            except SolverError:
+                return None
+
+        return map_on_cores(solve, len(firsts))
+
+    def _with_effects(self, candidate: Candidate, values: np.ndarray
+                      ) -> tuple[tuple[Effect, ...], tuple[Effect, ...], np.ndarray, bool]:
+        """The candidate's effects at `values`, their physics, every frame's effective cable
+        inputs (t, a) and whether the physics creeps (a group per hold time, _groups)."""
+        effects = candidate.effects(values)
+        physics = effects_of_kind(effects, "physics")
+        cables = [spec.name for spec in self.solutions.robot.cable_specs]
+        creep = any(e.name == "viscoelastic_creep" for e in physics)
+        return effects, physics, effective_actuation(effects, self.contexts, cables), creep
 
     def _plate_motion(self, candidate: Candidate, values: np.ndarray) -> np.ndarray | None:
         """(S, n, 3) mm: each state's motion at the mesh nodes with the candidate's plate,

@@ -201,6 +201,8 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
                     f"{1 / diagnosis.mesh_bracket.load_scale:.3g} of the other quadratic "
                     f"element on the mesh); alone: {_values_text(alone['parameters'])}, "
                     f"held-out {alone['heldout_rms_after_mm']:.2f} mm")
+            if diagnosis.mesh_rest and final is diagnosis.fitted:
+                lines.append(mesh_rest_line(diagnosis))
             if markers:
                 lines.append("seen by the markers only: the point clouds show no structured "
                              "mismatch (a camera turned about its axis or moved sideways "
@@ -226,7 +228,11 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
                             f"{evidence['static_final_mm']:.2f} mm left, more than the "
                             f"{evidence['static_limit_mm']:.2f} mm this mesh's own error "
                             "explains" if evidence["static_beyond_limit"] else "")
-                         + "): physics outside the library?")
+                         + "): physics outside the library?"
+                         + (f" (it leaves more than half of what this mesh's two quadratic "
+                            f"elements disagree by with its values: {bracket.relative_mm:.2f} mm "
+                            f"across frames, {bracket.static_mm:.2f} mm static)"
+                            if (bracket := diagnosis.fit_bracket) is not None else ""))
     if diagnosis.within_mesh:
         bracket = diagnosis.mesh_bracket
         lines.append(f"{', '.join(diagnosis.within_mesh)} fits it, but not beyond this mesh's "
@@ -253,6 +259,22 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
                      f"elements on the same mesh ({evidence['rms_nominal_mm']:.2f} mm); "
                      "use the robot with element = \"p2\" for sensing")
     return lines
+
+
+def mesh_rest_line(diagnosis: Diagnosis) -> str:
+    """The summary's line for a fit named though it leaves more than the noise, since the
+    mesh's two quadratic elements disagree by more than twice that with it (fit_bracket)."""
+    bracket = diagnosis.fit_bracket
+    states = bracket.groups + bracket.unsolved
+    unsolved = (f"; in the other {bracket.unsolved} of the {states} states the other element "
+                "has no equilibrium near it" if bracket.unsolved else "")
+    return (f"it leaves {bracket.rest_relative_mm:.2f} mm across frames (noise floor "
+            f"{diagnosis.noise_floor_mm:.2f} mm) and {bracket.rest_static_mm:.2f} mm static "
+            f"in {bracket.groups} states, less than half of what this mesh's two quadratic "
+            f"elements disagree by there with the fitted values ({bracket.relative_mm:.2f} mm "
+            f"across frames, {bracket.static_mm:.2f} mm static{unsolved}): the mesh cannot "
+            "resolve the body there and is the likely cause of the rest (a finer mesh would "
+            "tell)")
 
 
 def _values_text(parameters: dict[str, dict[str, Any]]) -> str:

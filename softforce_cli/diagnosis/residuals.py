@@ -137,3 +137,25 @@ def weighted_rms(values: np.ndarray, weights: np.ndarray) -> float:
     if total <= 0:
         return float("nan")
     return float(np.sqrt(np.sum(weights * np.nan_to_num(values) ** 2) / total))
+
+
+def node_systematic_mm(field: Field, node_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) per mesh node the point-weighted mean residual over all frames (mm; 0 where
+    unseen), and (n,) the points behind it."""
+    weight = np.bincount(field.node, weights=field.weight, minlength=node_count)
+    total = np.bincount(field.node, weights=field.weight * field.mean_mm, minlength=node_count)
+    return np.divide(total, weight, out=np.zeros(node_count), where=weight > 0), weight
+
+
+def static_mm(field: Field, node_count: int) -> float:
+    """The residual that stays the same in every frame: the RMS over the seen nodes of each
+    node's mean residual (node_systematic_mm), weighted by their points (mm)."""
+    mean, weight = node_systematic_mm(field, node_count)
+    return node_rms(mean, weight, weight > 0)
+
+
+def node_rms(mean_mm: np.ndarray, weight: np.ndarray, mask: np.ndarray) -> float:
+    """RMS (mm) of per-node means (n,) over the nodes in mask (n,), weighted by their points
+    (n,); 0 for none."""
+    return (float(np.sqrt(np.average(mean_mm[mask] ** 2, weights=weight[mask])))
+            if mask.any() else 0.0)

@@ -289,7 +289,7 @@ def element_bracket(solutions: StateSolutions, cache: SolveCache) -> ElementBrac
     """The ElementBracket of the accurate model of `solutions` (one more solve, cached);
     None when the other element has no equilibrium near the accurate one."""
     robot = solutions.robot
-    other = with_element(robot, "p2" if robot.element_name == "p2-p0" else "p2-p0")
+    other = other_element(robot)
     state = _least_actuated(solutions.actuation)
     accurate = solutions.positions_mm[state]
     try:
@@ -305,6 +305,12 @@ def element_bracket(solutions: StateSolutions, cache: SolveCache) -> ElementBrac
     apart = (positions - accurate)[robot.mesh.surface_nodes]
     return ElementBracket(float(np.vdot(positions - rest, moved) / size),
                           float(np.sqrt(np.mean(np.sum(apart**2, axis=1)))))
+
+
+def other_element(robot: Robot) -> Robot:
+    """The robot with the other quadratic element of its mesh (P2 <-> P2-P0): the two bracket
+    the mesh-converged body (docs/locking.md)."""
+    return with_element(robot, "p2" if robot.element_name == "p2-p0" else "p2-p0")
 
 
 def _least_actuated(actuation: np.ndarray) -> int:

@@ -1,0 +1,142 @@
+"""diagnosis.fit_bracket: the mesh's two quadratic elements compared at a fitted effect."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from softforce_cli.diagnosis.fit_bracket import MESH_REST_SHARE, FitBracket, fit_bracket
+from softforce_cli.diagnosis.fitting import Candidate
+from softforce_cli.diagnosis.hypotheses import Hypothesis
+from softforce_cli.diagnosis.pipeline import Diagnosis
+from softforce_cli.diagnosis.refit import ExactModel, Refit
+from softforce_cli.diagnosis.report import mesh_rest_line
+from softforce_cli.diagnosis.residuals import Field, surface_normals
+from softforce_cli.diagnosis.sensitivities import column_set
+from softforce_cli.diagnosis.solves import StateSolutions
+from softforce_cli.diagnosis.states import States
+from softforce_cli.fem.statics import solve_equilibrium
+from softforce_cli.model.effect_physics import fe_model_with_effects
+from softforce_cli.model.effects import FrameContext
+from softforce_cli.model.robot import load_robot, with_element
+from tests.test_reduced_model import write_beam
+
+SOFTER = Candidate((Hypothesis("stiffness_scale", None, ("scale",), np.array([1.0]),
+                               np.array([0.2]), np.array([5.0])),))
+
+
+def _exact_beam(tmp_path, actuation: np.ndarray) -> tuple:
+    """A P2 beam's exact model at states `actuation` (S, 2), one frame each, and every
+    surface node an entry of each frame (one point)."""
+    robot = load_robot(write_beam(tmp_path))
+    nominal = [solve_equilibrium(robot.fe_model, robot.cable_inputs(a)) for a in actuation]
+    columns = column_set(robot)
+    count = len(actuation)
+    solutions = StateSolutions(
+        robot, "p2", actuation, np.stack([e.positions_mm for e in nominal]),
+        np.stack([e.cable_tensions_n for e in nominal]),
+        np.zeros((count, len(columns.names), robot.fe_model.node_count, 3)), None, columns)
+    states = States(actuation, np.zeros((count, 2), np.int8), np.zeros(count),
+                    np.arange(count))
+    contexts = tuple(FrameContext(0.0, a, np.zeros(2, np.int8), 0.0) for a in actuation)
+    exact = ExactModel(solutions, states, contexts, [np.zeros((0, 3))] * count, None)
+    surface = robot.mesh.surface_nodes
+    field = Field(np.repeat(np.arange(count), len(surface)), np.tile(surface, count),
+                  np.zeros(count * len(surface)), np.ones(count * len(surface)))
+    return robot, exact, field
+
+
+def test_the_elements_disagreement_at_a_fit_is_the_two_elements_solved_apart(tmp_path):
+    """A P2 beam 30% softer at two actuations: the bracket is the normal component of the
+    P2-P0 equilibrium minus the P2 one, each solved from rest with the effect (not from each
+    other, as fit_bracket solves), split into each node's mean over the two frames (static)
+    and the deviation from it (half the change between the states)."""
+    actuation = np.array([[1.0, 0.5], [4.0, 0.0]])
+    robot, exact, field = _exact_beam(tmp_path, actuation)
+    values = np.array([0.7])
+    prediction = exact.predict(SOFTER, values)
+    # the fit leaves 0 mm in the first frame and 1 mm in the second at every node: 0.5 mm
+    # across frames and 0.5 mm static
+    left = Field(field.frame, field.node, field.frame.astype(float), field.weight)
+    fitted = Refit(SOFTER, values, left, np.zeros((len(field.frame), 1)), prediction, 2,
+                   values)
+    bracket = fit_bracket(exact, fitted)
+    assert bracket.rest_relative_mm == pytest.approx(0.5)
+    assert bracket.rest_static_mm == pytest.approx(0.5)
+
+    n, surface = robot.mesh.node_count, robot.mesh.surface_nodes
+    effects = SOFTER.effects(values)
+    apart = []
+    for a in actuation:
+        p2 = solve_equilibrium(fe_model_with_effects(robot, effects), robot.cable_inputs(a))
+        other = with_element(robot, "p2-p0")
+        p2p0 = solve_equilibrium(fe_model_with_effects(other, effects), other.cable_inputs(a))
+        normals = surface_normals(p2.positions_mm[:n], robot.mesh.surface_faces)
+        apart.append(np.einsum("ij,ij->i", (p2p0.positions_mm[:n] - p2.positions_mm[:n])[surface],
+                               normals[surface]))
+    first, second = apart
+    static = np.sqrt(np.mean(((first + second) / 2) ** 2))
+    relative = np.sqrt(np.mean(((first - second) / 2) ** 2))
+    assert bracket.groups == 2 and bracket.unsolved == 0
+    assert bracket.static_mm == pytest.approx(static, rel=1e-3)
+    assert bracket.relative_mm == pytest.approx(relative, rel=1e-3)
+    # the locking-prone P2 beam is stiffer than P2-P0: a bracket the tolerance cannot hide
+    assert relative > 0.01 and static > 0.1
+
+
+def test_a_camera_effect_is_left_out_and_one_state_has_no_bracket(tmp_path):
+    """A camera's shift is not the mesh's: with a physics effect, the bracket is the physics
+    alone's (solved again without the camera), a camera alone has none; what changes across
+    frames needs two states."""
+    actuation = np.array([[2.0, 1.0], [3.0, 0.0]])
+    _, exact, field = _exact_beam(tmp_path, actuation)
+    values = np.array([0.8])
+    prediction = exact.predict(SOFTER, values)
+    alone = fit_bracket(exact, Refit(SOFTER, values, field, np.zeros((len(field.frame), 1)),
+                                     prediction, 2, values))
+    depth = Hypothesis("depth_bias", None, ("scale",), np.array([0.0]), np.array([-0.05]),
+                       np.array([0.05]))
+    assert depth.kind == "sensor"
+    # the refit's own prediction (with the camera) is not used: the physics is solved again
+    both = Candidate((SOFTER.hypotheses[0], depth))
+    with_camera = fit_bracket(exact, Refit(both, np.array([0.8, 0.01]), field,
+                                           np.zeros((len(field.frame), 2)), prediction, 2,
+                                           np.array([0.8, 0.01])))
+    assert with_camera == alone and alone.relative_mm > 0
+    assert fit_bracket(exact, Refit(Candidate((depth,)), np.array([0.01]), field,
+                                    np.zeros((len(field.frame), 1)), prediction, 1,
+                                    np.array([0.01]))) is None
+    one = field.frame == 0
+    single = Field(field.frame[one], field.node[one], field.mean_mm[one], field.weight[one])
+    _, exact_one, _ = _exact_beam(tmp_path / "one", actuation[:1])
+    assert fit_bracket(exact_one, Refit(SOFTER, values, single, np.zeros((one.sum(), 1)),
+                                        exact_one.predict(SOFTER, values), 1, values)) is None
+
+
+@pytest.mark.parametrize(("rest_relative", "rest_static", "relative_named", "static_named",
+                          "expected"), [
+    (1.80, 1.50, False, False, True),    # a body 30% softer: the coarse Diamond near buckling
+    (2.00, 1.50, False, False, False),   # more across frames than half the disagreement
+    (1.80, 2.60, False, False, False),   # more static than half of it
+    (9.00, 2.60, True, True, True),      # nothing to excuse
+    (9.00, 1.50, False, True, False),
+])
+def test_the_rest_is_left_to_the_mesh_within_half_the_disagreement(
+        rest_relative, rest_static, relative_named, static_named, expected):
+    """Across frames the noise floor is taken off what is left first (0.45 mm here:
+    sqrt(1.8^2 - 0.45^2) = 1.74 <= 0.5 * 3.6; sqrt(2^2 - 0.45^2) = 1.95 is not)."""
+    bracket = FitBracket(relative_mm=3.6, static_mm=5.0, rest_relative_mm=rest_relative,
+                         rest_static_mm=rest_static, groups=4, unsolved=2)
+    assert MESH_REST_SHARE == 0.5
+    assert bracket.explains_rest(0.45, relative_named, static_named) is expected
+
+
+def test_the_summary_gives_the_rest_and_the_disagreement():
+    """The line a fit named with its rest left to the mesh adds to the summary."""
+    bracket = FitBracket(relative_mm=3.6, static_mm=5.0, rest_relative_mm=1.8,
+                         rest_static_mm=1.5, groups=7, unsolved=3)
+    line = mesh_rest_line(Diagnosis(None, None, noise_floor_mm=0.45, fit_bracket=bracket,
+                                    mesh_rest=True))
+    for figure in ("1.80 mm across frames", "0.45 mm", "1.50 mm static in 7 states",
+                   "3.60 mm across frames, 5.00 mm static", "3 of the 10 states"):
+        assert figure in line
