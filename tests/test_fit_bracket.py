@@ -140,3 +140,19 @@ def test_the_summary_gives_the_rest_and_the_disagreement():
     for figure in ("1.80 mm across frames", "0.45 mm", "1.50 mm static in 7 states",
                    "3.60 mm across frames, 5.00 mm static", "3 of the 10 states"):
         assert figure in line
+
+
+def test_states_of_equal_inputs_share_the_other_elements_solve(tmp_path):
+    """Loading and unloading to the same inputs are two states but one equilibrium of the
+    other element (without creep): solved once, as predict solves them, and equal to the
+    P2-P0 beam solved from rest with the effect."""
+    actuation = np.array([[2.0, 1.0], [2.0, 1.0], [3.0, 0.0]])
+    robot, exact, _ = _exact_beam(tmp_path, actuation)
+    values = np.array([0.8])
+    others = exact.other_element(SOFTER, values, exact.predict(SOFTER, values))
+    assert others[0] is others[1] and others[2] is not others[0]
+    other = with_element(robot, "p2-p0")
+    direct = solve_equilibrium(fe_model_with_effects(other, SOFTER.effects(values)),
+                               other.cable_inputs(actuation[0]))
+    n = robot.mesh.node_count
+    assert np.abs(others[0] - direct.positions_mm[:n]).max() < 1e-4

@@ -238,7 +238,8 @@ class ExactModel:
         """Per group of `prediction` (this model's at `values`, a candidate without camera
         effects), the mesh nodes (n, 3) mm of the mesh's other quadratic element
         (solves.other_element) with the same effects, each solved from this model's
-        equilibrium; None where Newton's method finds no equilibrium near it."""
+        equilibrium (once per effective input without creep, as predict solves); None where
+        Newton's method finds no equilibrium near it."""
         solutions = self.solutions
         robot = solutions.robot
         other = other_element(robot)
@@ -264,7 +265,13 @@ class ExactModel:
             except SolverError:
                 return None
 
-        return map_on_cores(solve, len(firsts))
+        # groups of equal inputs (loading and unloading) share a solve, as in predict
+        keys = [g if creep else effective[first].tobytes() for g, first in enumerate(firsts)]
+        leader = {key: keys.index(key) for key in dict.fromkeys(keys)}
+        leaders = list(leader.values())
+        solved = dict(zip(leaders, map_on_cores(lambda i: solve(leaders[i]), len(leaders)),
+                          strict=True))
+        return [solved[leader[key]] for key in keys]
 
     def _with_effects(self, candidate: Candidate, values: np.ndarray
                       ) -> tuple[tuple[Effect, ...], tuple[Effect, ...], np.ndarray, bool]:
