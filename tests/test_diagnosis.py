@@ -64,7 +64,7 @@ from softforce_cli.fem.compliance import linearize
 from softforce_cli.fem.statics import SolverSettings, solve_by_continuation, solve_equilibrium
 from softforce_cli.model.effect_physics import fe_model_with_effects, support_plane
 from softforce_cli.model.effects import FrameContext, frame_contexts, make_effect
-from softforce_cli.model.robot import load_robot, with_element
+from softforce_cli.model.robot import Robot, load_robot, with_element
 from tests.conftest import SAMPLE_ROBOT
 from tests.test_reduced_model import write_beam
 
@@ -382,10 +382,9 @@ def test_refit_continuation_reaches_the_direct_equilibrium(tmp_path):
     assert np.abs(direct.positions_mm - nominal.positions_mm).max() > 1.5
 
 
-def test_the_refit_solves_its_states_on_the_cores_as_in_turn(tmp_path, monkeypatch):
-    """The exact model's states, solved in worker processes (fem.processes), are the ones
-    solved in turn in this process: a P2 beam 20% softer at three actuations; one the
-    exact model cannot reach is reported with its inputs, as in turn."""
+def _beam_states(tmp_path) -> tuple[Robot, ExactModel, list]:
+    """A P2 beam's exact model at three actuations, one frame each (no sensitivity columns:
+    every first-order start is the nominal equilibrium), and those equilibria."""
     robot = load_robot(write_beam(tmp_path))
     actuation = np.array([[1.0, 0.5], [3.0, 2.0], [2.0, 4.0]])
     nominal = [solve_equilibrium(robot.fe_model, robot.cable_inputs(a)) for a in actuation]
@@ -397,9 +396,19 @@ def test_the_refit_solves_its_states_on_the_cores_as_in_turn(tmp_path, monkeypat
         np.zeros((3, len(columns.names), node_count, 3)), None, columns)
     states = States(actuation, np.zeros((3, 2), np.int8), np.zeros(3), np.arange(3))
     contexts = tuple(FrameContext(0.0, a, np.zeros(2, np.int8), 0.0) for a in actuation)
-    exact = ExactModel(solutions, states, contexts, [np.zeros((0, 3))] * 3, None)
-    softer = Candidate((Hypothesis("stiffness_scale", None, ("scale",), np.array([1.0]),
-                                   np.array([0.2]), np.array([5.0])),))
+    return robot, ExactModel(solutions, states, contexts, [np.zeros((0, 3))] * 3, None), nominal
+
+
+SOFTER_BEAM = Candidate((Hypothesis("stiffness_scale", None, ("scale",), np.array([1.0]),
+                                    np.array([0.2]), np.array([5.0])),))
+
+
+def test_the_refit_solves_its_states_on_the_cores_as_in_turn(tmp_path, monkeypatch):
+    """The exact model's states, solved in worker processes (fem.processes), are the ones
+    solved in turn in this process: a P2 beam 20% softer at three actuations; one the
+    exact model cannot reach is reported with its inputs, as in turn."""
+    robot, exact, nominal = _beam_states(tmp_path)
+    softer = SOFTER_BEAM
     assert processes.worker_count(3) == min(3, len(os.sched_getaffinity(0)))
     on_cores = exact.predict(softer, np.array([0.8]))
     with monkeypatch.context() as patch:
@@ -418,6 +427,54 @@ def test_the_refit_solves_its_states_on_the_cores_as_in_turn(tmp_path, monkeypat
     monkeypatch.setattr(refit, "solve_equilibrium", unreachable)
     with pytest.raises(refit.NoEquilibriumError, match=r"inputs \(3, 2\)"):
         exact.predict(softer, np.array([0.8]))
+
+
+def test_a_prediction_near_an_earlier_one_starts_from_its_equilibria(tmp_path, monkeypatch):
+    """predict's `near`: the beam 40% softer solved from the equilibria of the one 45%
+    softer (a refit's step) lands where the plain start lands, within Newton's tolerance,
+    in 2 Newton iterations a state instead of 3; a near start that fails falls back on the
+    plain one."""
+    _, exact, _ = _beam_states(tmp_path)
+    monkeypatch.setattr(processes, "worker_count", lambda tasks: 1)
+    solutions = exact.solutions
+
+    def started_near(inputs, start_mm: np.ndarray) -> bool:
+        """Whether a solve of `inputs` starts elsewhere than at its state's equilibrium."""
+        s = next(i for i, a in enumerate(solutions.actuation)
+                 if np.array_equal(inputs.values, a))
+        return not np.array_equal(start_mm, solutions.positions_mm[s])
+
+    iterations: list[tuple[bool, int]] = []  # (started near, Newton iterations) per solve
+
+    def counted(model, inputs, start_mm, **settings):
+        equilibrium = solve_equilibrium(model, inputs, start_mm=start_mm, **settings)
+        iterations.append((started_near(inputs, start_mm), equilibrium.iterations))
+        return equilibrium
+
+    monkeypatch.setattr(refit, "solve_equilibrium", counted)
+    plain = exact.predict(SOFTER_BEAM, np.array([0.6]))
+    earlier = exact.predict(SOFTER_BEAM, np.array([0.55]))
+    iterations.clear()
+    near = exact.predict(SOFTER_BEAM, np.array([0.6]), earlier)
+    np.testing.assert_allclose(near.positions_mm, plain.positions_mm, atol=1e-3)
+    np.testing.assert_allclose(near.nonlinear_mm, plain.nonlinear_mm, atol=1e-3)
+    assert np.abs(plain.nonlinear_mm).max() > 0.3
+    assert [near_start for near_start, _ in iterations] == [True] * 3
+    iterations_near = [count for _, count in iterations]
+    iterations.clear()
+    exact.predict(SOFTER_BEAM, np.array([0.6]))
+    assert iterations_near == [2] * 3
+    assert [count for _, count in iterations] == [3] * 3
+
+    def failing_near(model, inputs, start_mm, **settings):
+        if started_near(inputs, start_mm):
+            raise SolverError("no")
+        return solve_equilibrium(model, inputs, start_mm=start_mm, **settings)
+
+    monkeypatch.setattr(refit, "solve_equilibrium", failing_near)
+    fallen_back = exact.predict(SOFTER_BEAM, np.array([0.6]), earlier)
+    np.testing.assert_allclose(fallen_back.positions_mm, plain.positions_mm, atol=1e-3)
+    assert fallen_back.solves == 3
 
 
 def test_diagnosis_solves_do_not_stop_at_a_start_whose_imbalance_is_spread_thin(tmp_path):
@@ -845,7 +902,7 @@ def test_the_cameras_are_compared_again_with_the_mesh_allowance(monkeypatch, sam
     class Judge(_StubJudge):
         table, floor = None, 0.38
 
-        def final(self, screened):
+        def final(self, screened, near=None):
             hypotheses = screened.candidate.hypotheses
             name = hypotheses[0].name
             if len(hypotheses) > 1:
@@ -896,7 +953,7 @@ def test_a_static_effect_is_reported_with_the_mesh_allowance(monkeypatch, sample
         return HeldOut(1.64, rms_mm, np.full(8, 1.64**2), rms_mm**2 + spread)
 
     class Judge(_StubJudge):
-        def final(self, screened):
+        def final(self, screened, near=None):
             refitted.append(screened.candidate)
             values = np.array([0.18, 0.98])
             fitted = Refit(screened.candidate, values, None, None, None, 7, values)
@@ -988,7 +1045,7 @@ def test_a_refit_past_what_the_model_can_solve_pulls_back_and_says_where():
         basis = SimpleNamespace(inputs_for=lambda field: inputs, table=None,
                                 robot_from_camera=inputs.robot_from_camera)
 
-        def predict(self, candidate, values):
+        def predict(self, candidate, values, near=None):
             if values[0] < 0.75:
                 raise NoEquilibriumError(candidate, values, np.array([9.0, 0.0]))
             self.values = values
@@ -1035,7 +1092,7 @@ def test_a_refit_pulled_back_learns_from_the_exact_shift_to_where_it_could_solve
                                 robot_from_camera=inputs.robot_from_camera)
         nominal_field = _field((moved(truth) - moved(1.0)) * pattern)
 
-        def predict(self, candidate, values):
+        def predict(self, candidate, values, near=None):
             if values[0] < 0.77:
                 raise NoEquilibriumError(candidate, values, np.array([6.0, 0.0]))
             self.values = values
@@ -1084,7 +1141,7 @@ def test_the_refit_learns_how_far_the_exact_model_moves(exact_shift):
         basis = SimpleNamespace(inputs_for=lambda field: inputs, table=None,
                                 robot_from_camera=inputs.robot_from_camera)
 
-        def predict(self, candidate, values):
+        def predict(self, candidate, values, near=None):
             self.values = values
             return Prediction(np.zeros((1, nodes, 3)), np.zeros(frames, dtype=int), 1)
 
@@ -1139,7 +1196,7 @@ def test_the_refit_fits_a_camera_to_the_table_as_its_screening_does():
         basis = SimpleNamespace(inputs_for=lambda f: inputs, table=table,
                                 robot_from_camera=inputs.robot_from_camera)
 
-        def predict(self, candidate, values):
+        def predict(self, candidate, values, near=None):
             self.values = values
             return Prediction(np.zeros((1, 40, 3)), np.zeros(6, dtype=int), 0)
 

@@ -27,7 +27,7 @@ from softforce_cli.diagnosis.fitting import (
 from softforce_cli.diagnosis.hypotheses import ABSOLUTE, Hypothesis, Inputs, hypotheses
 from softforce_cli.diagnosis.markers import marker_field, marker_inputs, marker_rms_mm
 from softforce_cli.diagnosis.observations import DiagnosisError, Observations
-from softforce_cli.diagnosis.refit import ExactModel, Refit, refit
+from softforce_cli.diagnosis.refit import ExactModel, Prediction, Refit, refit
 from softforce_cli.diagnosis.residuals import (
     Field,
     measure,
@@ -241,9 +241,11 @@ class _Judge:
         return _screen(candidate, self.inputs, self.segments, relative, self.n_eff, self.frames,
                        start=start)
 
-    def final(self, screened: Screened, baseline: HeldOut | None = None) -> Final:
+    def final(self, screened: Screened, baseline: HeldOut | None = None,
+              near: Prediction | None = None) -> Final:
         """A screened candidate refitted on the exact model, accepted when it clearly improves
-        on the nominal model (or on `baseline`) and agrees with the table."""
+        on the nominal model (or on `baseline`) and agrees with the table; its solves start
+        near an earlier prediction where given (a pair's, its first effect's fit: refit)."""
         exact, segments, nominal = self.exact, self.segments, self.nominal
 
         # the refit stops on the residuals' own scatter; the reported interval also counts
@@ -253,7 +255,7 @@ class _Judge:
             return 0.5 * (interval[:, 1] - interval[:, 0])
 
         fitted = refit(exact, screened.candidate, screened.values, screened.relative,
-                       half_widths, self.stop_requested)
+                       half_widths, self.stop_requested, near)
         inputs = exact.basis.inputs_for(fitted.field)
         result = exact_heldout(fitted, inputs, segments, nominal, screened.relative)
         relative = result if screened.relative else exact_heldout(fitted, inputs, segments,
@@ -596,7 +598,8 @@ def _with_the_mesh(result: Diagnosis, judge: _Judge, solutions: StateSolutions,
     for i, final in enumerate(chosen):
         judge.check_stop()
         judge.report("mesh allowance", i, len(chosen))
-        fitted = _refit_with(result, judge, final.candidate, final.values, allowance)
+        fitted = _refit_with(result, judge, final.candidate, final.values, allowance,
+                             near=final.refit.prediction)
         if fitted is not None and fitted.accepted and fitted.heldout.rms_after_mm <= (
                 (1.0 + SAME_FIT_SHARE) * final.heldout.rms_after_mm):
             result.with_mesh[final] = fitted
@@ -604,13 +607,14 @@ def _with_the_mesh(result: Diagnosis, judge: _Judge, solutions: StateSolutions,
 
 
 def _refit_with(result: Diagnosis, judge: _Judge, candidate: Candidate, values: np.ndarray,
-                allowance: Hypothesis) -> Final | None:
+                allowance: Hypothesis, near: Prediction | None = None) -> Final | None:
     """A candidate refitted on the absolute residuals together with the mesh's allowance,
-    from its values and none; None (noted in result.not_refitted) when a solve fails."""
+    from its values and none (its solves started near `near`, the candidate's own fit,
+    where given); None (noted in result.not_refitted) when a solve fails."""
     pair = judge.screen(Candidate((*candidate.hypotheses, allowance)), False,
                         start=np.concatenate([values, np.ones(1)]))
     try:
-        return judge.final(pair)
+        return judge.final(pair, near=near)
     except SolverError as error:
         result.not_refitted.append(f"{pair.candidate.label}: {error}")
         return None
@@ -901,7 +905,7 @@ def _second_in_mode(result: Diagnosis, judge: _Judge, first: Final, relative: bo
         if judge.stop_requested():
             break
         try:
-            final = judge.final(pair, baseline=exact_alone)
+            final = judge.final(pair, baseline=exact_alone, near=first.refit.prediction)
         except SolverError as error:
             result.not_refitted.append(f"{pair.candidate.label}: {error}")
             continue

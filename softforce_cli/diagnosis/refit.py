@@ -2,12 +2,13 @@
 
 The screening's first-order model ranks every hypothesis; the few best are refitted on the
 exact model: each state solved again with the effects (warm-started from its nominal
-equilibrium of the accurate model, diagnosis.solves), the camera effects applied, and the
-residuals measured again (each point re-associated with the moved surface). Gauss-Newton
-steps use the first-order model's Jacobian at the current values with these exact residuals,
-corrected by Broyden's secant update from the shifts the steps before made (a chord method
-alone converges at the first-order model's rate, which for a large stiffness change is slow),
-each step kept only when the exact residual falls.
+equilibrium of the accurate model moved to first order, diagnosis.solves, plus what the
+refit's previous evaluation found beyond its own first-order start), the camera effects
+applied, and the residuals measured again (each point re-associated with the moved
+surface). Gauss-Newton steps use the first-order model's Jacobian at the current values with
+these exact residuals, corrected by Broyden's secant update from the shifts the steps before
+made (a chord method alone converges at the first-order model's rate, which for a large
+stiffness change is slow), each step kept only when the exact residual falls.
 """
 
 from __future__ import annotations
@@ -132,6 +133,9 @@ class Prediction:
     positions_mm: np.ndarray
     of_frame: np.ndarray
     solves: int
+    # (G, N, 3) mm: each group's equilibrium (every node) less the first-order start it was
+    # solved from, which a next prediction carries over (ExactModel.predict's `near`)
+    nonlinear_mm: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -163,10 +167,18 @@ class ExactModel:
     points_mm: list[np.ndarray]
     basis: Basis
 
-    def predict(self, candidate: Candidate, values: np.ndarray) -> Prediction:
+    def predict(self, candidate: Candidate, values: np.ndarray,
+                near: Prediction | None = None) -> Prediction:
         """The predicted mesh nodes with the candidate's effects, per group of frames; the
         groups' solves, independent of each other, run on the machine's cores
-        (fem.processes)."""
+        (fem.processes).
+
+        Each group's Newton solve starts from its state's nominal equilibrium moved to first
+        order by the candidate (StateSolutions.first_order), plus, given `near` (an earlier
+        prediction of this model: a refit's last step), what near's equilibrium of the
+        group's first frame was beyond its own first-order start. A refit's next step is a
+        small change, and that start spares its solves an iteration; the plain start is
+        tried after it where it fails."""
         solutions = self.solutions
         robot = solutions.robot
         n = robot.mesh.node_count
@@ -175,6 +187,7 @@ class ExactModel:
         of_frame, firsts = self._groups(creep)
         plate = self._plate_motion(candidate, values)
         predicted = solutions.predicted_mm[self.states.of_frame[firsts]].copy()
+        nonlinear = np.zeros((len(firsts), *solutions.positions_mm.shape[1:]))
         # without creep one model serves every group: made here, so that workers inherit it
         shared = (None if creep else fe_model_with_effects(robot, physics) if physics
                   else robot.nominal_fe_model)
@@ -193,27 +206,33 @@ class ExactModel:
             else:
                 twins[g] = twin
 
-        def solve(index: int) -> tuple[np.ndarray, int]:
+        def solve(index: int) -> tuple[np.ndarray, np.ndarray, int]:
             first = firsts[solved[index]]
             s = int(self.states.of_frame[first])
             inputs = effective[first]
             context = self.contexts[first]
             model = fe_model_with_effects(robot, physics, context) if creep else shared
-            start = solutions.first_order(s, _column_changes(
+            first_order = solutions.first_order(s, _column_changes(
                 candidate, values, context.hold_s,
                 dict(zip(cables, inputs - solutions.actuation[s], strict=True))))
             if plate is not None:
-                start += robot.fe_mesh.from_corners(plate[s])
-            try:
-                solution = solve_equilibrium(model, CableInputs(controls, inputs),
-                                             start_mm=start, settings=DIRECT_SETTINGS)
-                return solution.positions_mm[:n], 1
-            except SolverError:  # too far for Newton from the first-order start
+                first_order += robot.fe_mesh.from_corners(plate[s])
+            starts = [first_order]
+            if near is not None and near.nonlinear_mm is not None:
+                starts.insert(0, first_order + near.nonlinear_mm[near.of_frame[first]])
+            for start in starts:
                 try:
-                    solution = self._continued(candidate, values, first)
-                except SolverError as error:
-                    raise _UnreachedError(index, str(error)) from error
-                return solution.positions_mm[:n], CONTINUATION_STEPS
+                    solution = solve_equilibrium(model, CableInputs(controls, inputs),
+                                                 start_mm=start, settings=DIRECT_SETTINGS)
+                    return solution.positions_mm[:n], solution.positions_mm - first_order, 1
+                except SolverError:  # too far for Newton from this start
+                    pass
+            try:
+                solution = self._continued(candidate, values, first)
+            except SolverError as error:
+                raise _UnreachedError(index, str(error)) from error
+            return (solution.positions_mm[:n], solution.positions_mm - first_order,
+                    CONTINUATION_STEPS)
 
         try:
             results = map_on_cores(solve, len(solved))
@@ -221,17 +240,17 @@ class ExactModel:
             first = firsts[solved[unreached.index]]
             raise NoEquilibriumError(candidate, values, effective[first]) from SolverError(
                 unreached.message)
-        for g, (positions, _) in zip(solved, results, strict=True):
-            predicted[g] = positions
+        for g, (positions, beyond, _) in zip(solved, results, strict=True):
+            predicted[g], nonlinear[g] = positions, beyond
         for g, twin in twins.items():
-            predicted[g] = predicted[twin]
-        solves = sum(count for _, count in results)
+            predicted[g], nonlinear[g] = predicted[twin], nonlinear[twin]
+        solves = sum(count for *_, count in results)
         sensor = effects_of_kind(effects, "sensor")
         if sensor:
             shape = predicted.shape
             predicted = observed_points_robot(predicted.reshape(-1, 3), sensor,
                                               self.basis.robot_from_camera).reshape(shape)
-        return Prediction(predicted, of_frame, solves)
+        return Prediction(predicted, of_frame, solves, nonlinear)
 
     def other_element(self, candidate: Candidate, values: np.ndarray, prediction: Prediction
                       ) -> list[np.ndarray | None]:
@@ -364,20 +383,23 @@ def _column_changes(candidate: Candidate, values: np.ndarray, hold_s: float,
 
 def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: bool,
           half_widths: Callable[[Field, np.ndarray, np.ndarray], np.ndarray],
-          stop_requested: Callable[[], bool] = lambda: False) -> Refit:
+          stop_requested: Callable[[], bool] = lambda: False,
+          near: Prediction | None = None) -> Refit:
     """Gauss-Newton on the exact model from the screening's values `start` (relative: with
     the static offsets per node, diagnosis.fitting). half_widths(field, jacobian, values)
     gives the 95% half-widths (k,): a step within half of them is taken on the first-order
     model, without solving the states again (the data cannot tell the two values apart).
     The steps and the secant are taken in StepCoordinates. A camera effect is fitted to the
-    observed table's height too, as in its screening (diagnosis.fitting.table_rows)."""
+    observed table's height too, as in its screening (diagnosis.fitting.table_rows).
+    Each evaluation's solves start near the one before (ExactModel.predict), the first near
+    `near` where given."""
     values = np.clip(np.asarray(start, dtype=float), candidate.lower, candidate.upper)
     neutral = np.clip(candidate.start, candidate.lower, candidate.upper)
     coordinates = StepCoordinates.of(candidate)
     unreached: list[SolverError] = []
     for backoff in range(BACKOFFS + 1):
         try:
-            prediction = exact.predict(candidate, values)
+            prediction = exact.predict(candidate, values, near)
             break
         except SolverError as error:  # beyond the equilibria near the nominal one
             if backoff == BACKOFFS:
@@ -438,7 +460,8 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
             return Refit(candidate, trial, field, reported, prediction, solves, values,
                          tuple(unreached))
         for _ in range(OVERSHOOT_HALVINGS + 1):
-            moved, trial = _reached(exact, candidate, values, trial, coordinates, unreached)
+            moved, trial = _reached(exact, candidate, values, trial, coordinates, unreached,
+                                    prediction)
             if moved is None:
                 break
             solves += moved.solves
@@ -535,14 +558,14 @@ class StepCoordinates:
 
 
 def _reached(exact: ExactModel, candidate: Candidate, values: np.ndarray, trial: np.ndarray,
-             coordinates: StepCoordinates, unreached: list[SolverError]
+             coordinates: StepCoordinates, unreached: list[SolverError], near: Prediction
              ) -> tuple[Prediction | None, np.ndarray]:
-    """(the prediction at trial, trial), the step from values halved while no solve reaches
-    it (BACKOFFS times at most; each failure appended to unreached): (None, trial) when
-    none does."""
+    """(the prediction at trial, trial), solved near the prediction at values (predict), the
+    step from values halved while no solve reaches it (BACKOFFS times at most; each failure
+    appended to unreached): (None, trial) when none does."""
     for _ in range(BACKOFFS):
         try:
-            return exact.predict(candidate, trial), trial
+            return exact.predict(candidate, trial, near), trial
         except SolverError as error:  # the step left what Newton can follow: halve it
             unreached.append(error)
             trial = coordinates.midway(values, trial)
