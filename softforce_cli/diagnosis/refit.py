@@ -134,7 +134,8 @@ class Prediction:
     of_frame: np.ndarray
     solves: int
     # (G, N, 3) mm: each group's equilibrium (every node) less the first-order start it was
-    # solved from, which a next prediction carries over (ExactModel.predict's `near`)
+    # solved from, which a next prediction carries over (ExactModel.predict's `near`); in
+    # float32, as a Newton start needs no more, since a diagnosis keeps every refit's
     nonlinear_mm: np.ndarray | None = None
 
 
@@ -187,7 +188,7 @@ class ExactModel:
         of_frame, firsts = self._groups(creep)
         plate = self._plate_motion(candidate, values)
         predicted = solutions.predicted_mm[self.states.of_frame[firsts]].copy()
-        nonlinear = np.zeros((len(firsts), *solutions.positions_mm.shape[1:]))
+        nonlinear = np.zeros((len(firsts), *solutions.positions_mm.shape[1:]), np.float32)
         # without creep one model serves every group: made here, so that workers inherit it
         shared = (None if creep else fe_model_with_effects(robot, physics) if physics
                   else robot.nominal_fe_model)
