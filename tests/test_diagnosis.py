@@ -857,6 +857,50 @@ def test_a_heavier_or_softer_body_within_the_mesh_error_is_not_named(monkeypatch
     assert named(softer(0.95), systematic_mm=2.40)
 
 
+def test_a_second_effect_within_the_mesh_error_is_not_named(monkeypatch, sample_robot):
+    """(pipeline._second_within_mesh) A north cable 4 mm slack with gravity 1.062 as its
+    second effect, the tilts' intervals holding 0 (the converged body at 640x480): with the
+    other quadratic element 1.14 times as compliant and 1.29 mm away, the gravity is the
+    mesh's and the slack alone is named, its static residual (1.08 mm) within the mesh's
+    error. The second stays where the slack alone leaves more (2.0 mm), where the gravity is
+    tilted beyond its interval or beyond the bracket (1.2), and where it is not one of the
+    library's hypotheses (the mesh's allowance a camera is fitted with)."""
+    bracket = ElementBracket(1.14, 1.29)
+    monkeypatch.setattr(pipeline, "element_bracket", lambda solutions, cache: bracket)
+    slack = Hypothesis("cable_slack", "north", ("slack_mm",), np.zeros(1), np.zeros(1),
+                       np.full(1, 10.0))
+    gravity = Hypothesis("gravity", None, ("scale", "tilt_x_deg", "tilt_y_deg"),
+                         np.array([1.0, 0.0, 0.0]), np.array([0.5, -20.0, -20.0]),
+                         np.array([2.0, 20.0, 20.0]))
+    held = HeldOut(1.1, 0.21, np.full(8, 1.2), np.full(8, 0.05))
+
+    def final(hypotheses: tuple, values: list[float], ci95: list[list[float]],
+              static_mm: float = 0.3) -> Final:
+        candidate, values = Candidate(hypotheses), np.array(values)
+        fitted = Refit(candidate, values, _field(np.full((2, 5), static_mm)), None, None, 0,
+                       values)
+        return Final(Screened(candidate, values, held, True, np.array(ci95), None), fitted,
+                     held, np.array(ci95), True, None)
+
+    def second_named(values: list[float], ci95: list[list[float]], first_static_mm=1.08,
+                     library=(slack, gravity)) -> bool:
+        result = Diagnosis(sample_robot, None)
+        result.selected = [final((slack,), [3.96], [[3.78, 4.14]], first_static_mm),
+                           final((slack, gravity), [3.95, *values], [[3.74, 4.15], *ci95])]
+        result.screened = [Screened(Candidate((h,)), None, held, True, None, None)
+                           for h in library]
+        pipeline._second_within_mesh(result, None, None)
+        assert (len(result.selected) == 1) == bool(result.within_mesh)
+        return len(result.selected) == 2
+
+    held_zero = [[1.054, 1.07], [-1.6, 0.25], [-0.77, 0.07]]
+    assert not second_named([1.062, -0.68, -0.35], held_zero)
+    assert second_named([1.062, -0.68, -0.35], held_zero, first_static_mm=2.0)
+    assert second_named([1.062, -1.1, -0.35], [[1.054, 1.07], [-1.5, -0.7], [-0.77, 0.07]])
+    assert second_named([1.2, -0.68, -0.35], [[1.19, 1.21], [-1.6, 0.25], [-0.77, 0.07]])
+    assert second_named([1.062, -0.68, -0.35], held_zero, library=(slack,))
+
+
 class _StubJudge:
     """A pipeline._Judge whose screening keeps a candidate's start; tests give its final."""
 
