@@ -862,9 +862,11 @@ def test_a_second_effect_within_the_mesh_error_is_not_named(monkeypatch, sample_
     second effect, the tilts' intervals holding 0 (the converged body at 640x480): with the
     other quadratic element 1.14 times as compliant and 1.29 mm away, the gravity is the
     mesh's and the slack alone is named, its static residual (1.08 mm) within the mesh's
-    error. The second stays where the slack alone leaves more (2.0 mm), where the gravity is
-    tilted beyond its interval or beyond the bracket (1.2), and where it is not one of the
-    library's hypotheses (the mesh's allowance a camera is fitted with)."""
+    error; so is a gravity tilted 1.1 degrees that a body 0.939 as stiff fits as well (a
+    west slack in the converged body at 424x240). The second stays where the slack alone
+    leaves more (2.0 mm), where the gravity is tilted beyond its interval with no such
+    rival, or beyond the bracket (1.2), and where it is not one of the library's
+    hypotheses (the mesh's allowance a camera is fitted with)."""
     bracket = ElementBracket(1.14, 1.29)
     monkeypatch.setattr(pipeline, "element_bracket", lambda solutions, cache: bracket)
     slack = Hypothesis("cable_slack", "north", ("slack_mm",), np.zeros(1), np.zeros(1),
@@ -872,6 +874,8 @@ def test_a_second_effect_within_the_mesh_error_is_not_named(monkeypatch, sample_
     gravity = Hypothesis("gravity", None, ("scale", "tilt_x_deg", "tilt_y_deg"),
                          np.array([1.0, 0.0, 0.0]), np.array([0.5, -20.0, -20.0]),
                          np.array([2.0, 20.0, 20.0]))
+    stiffness = Hypothesis("stiffness_scale", None, ("scale",), np.ones(1), np.full(1, 0.2),
+                           np.full(1, 5.0))
     held = HeldOut(1.1, 0.21, np.full(8, 1.2), np.full(8, 0.05))
 
     def final(hypotheses: tuple, values: list[float], ci95: list[list[float]],
@@ -883,10 +887,11 @@ def test_a_second_effect_within_the_mesh_error_is_not_named(monkeypatch, sample_
                      held, np.array(ci95), True, None)
 
     def second_named(values: list[float], ci95: list[list[float]], first_static_mm=1.08,
-                     library=(slack, gravity)) -> bool:
+                     library=(slack, gravity, stiffness), rivals=()) -> bool:
         result = Diagnosis(sample_robot, None)
         result.selected = [final((slack,), [3.96], [[3.78, 4.14]], first_static_mm),
                            final((slack, gravity), [3.95, *values], [[3.74, 4.15], *ci95])]
+        result.second_rivals = list(rivals)
         result.screened = [Screened(Candidate((h,)), None, held, True, None, None)
                            for h in library]
         pipeline._second_within_mesh(result, None, None)
@@ -899,6 +904,10 @@ def test_a_second_effect_within_the_mesh_error_is_not_named(monkeypatch, sample_
     assert second_named([1.062, -1.1, -0.35], [[1.054, 1.07], [-1.5, -0.7], [-0.77, 0.07]])
     assert second_named([1.2, -0.68, -0.35], [[1.19, 1.21], [-1.6, 0.25], [-0.77, 0.07]])
     assert second_named([1.062, -0.68, -0.35], held_zero, library=(slack,))
+    tilted = [[1.054, 1.068], [-1.44, -0.71], [-0.87, 0.02]]
+    softer = final((slack, stiffness), [2.09, 0.939], [[1.9, 2.28], [0.926, 0.952]])
+    assert second_named([1.061, -1.07, -0.42], tilted)
+    assert not second_named([1.061, -1.07, -0.42], tilted, rivals=[softer])
 
 
 class _StubJudge:

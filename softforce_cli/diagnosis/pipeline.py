@@ -501,29 +501,34 @@ def _within_mesh(result: Diagnosis, solutions: StateSolutions, cache: SolveCache
 
 def _second_within_mesh(result: Diagnosis, solutions: StateSolutions, cache: SolveCache
                         ) -> None:
-    """Leave unnamed (result.within_mesh) a second effect that is a load scale within the
-    mesh's own error (as _within_mesh a first one), where the first effect alone leaves no
-    more residual that stays the same in every frame than that error (leaves_static_beyond):
-    then the second explains the mesh's sag, not physics. Against the converged body at
-    640x480, a north cable 4 mm slack took gravity 1.062 (its tilts' intervals holding 0) as
-    its second effect, and wrote it into the fitted robot file (docs/diagnosis.md, limits)."""
+    """Leave unnamed (result.within_mesh) a second effect that is, or fits no better than
+    (a rival pair the data cannot tell from it), a load scale within the mesh's own error
+    (as _within_mesh a first one), where the first effect alone leaves no more residual that
+    stays the same in every frame than that error (leaves_static_beyond): then the second
+    explains the mesh's sag, not physics. Against the converged body a west cable 2 mm slack
+    took gravity 1.061 tilted 1.1 degrees as its second effect, as well as a body 0.939 as
+    stiff, and wrote it into the fitted robot file (docs/diagnosis.md, method 11)."""
     if len(result.selected) != 2:
         return
     first, pair = result.selected
-    second = pair.candidate.hypotheses[-1]
-    if not any(second is s.candidate.hypotheses[0] for s in result.screened):
-        return  # the mesh's allowance a camera was fitted with (_camera_with_the_mesh)
-    scale = second_load_scale(pair, result.robot)
-    bracket = None if scale is None else _mesh_bracket(result, solutions, cache)
-    if bracket is None or not min(1.0, bracket.load_scale) <= scale <= max(
-            1.0, bracket.load_scale):
+    library = [s.candidate.hypotheses[0] for s in result.screened]
+    # the mesh's allowance a camera was fitted with (_camera_with_the_mesh) is the mesh's
+    # already, and not one of the library's hypotheses
+    alike = [f for f in (pair, *(r for r in result.second_rivals
+                                 if indistinct(r.heldout, pair.heldout)))
+             if any(f.candidate.hypotheses[-1] is h for h in library)]
+    scales = [scale for f in alike if (scale := second_load_scale(f, result.robot)) is not None]
+    bracket = _mesh_bracket(result, solutions, cache) if scales else None
+    if bracket is None or not any(min(1.0, bracket.load_scale) <= scale
+                                  <= max(1.0, bracket.load_scale) for scale in scales):
         return
     if leaves_static_beyond(first, static_mm(first.refit.field, result.robot.mesh.node_count),
                             bracket.surface_rms_mm):
         return
-    result.within_mesh.append(f"{second.label} as a second effect (load scale g / E "
-                              f"{scale:.3g})")
-    result.selected = [first]
+    result.within_mesh.append(
+        ", ".join(f.candidate.hypotheses[-1].label for f in alike) + " as a second effect "
+        f"(load scale g / E {', '.join(f'{scale:.3g}' for scale in scales)})")
+    result.selected, result.second_rivals = [first], []
 
 
 def _camera_with_the_mesh(result: Diagnosis, judge: _Judge, solutions: StateSolutions,
