@@ -504,8 +504,9 @@ def _second_within_mesh(result: Diagnosis, solutions: StateSolutions, cache: Sol
     """Leave unnamed (result.within_mesh) a second effect that is, or fits no better than
     (a rival pair the data cannot tell from it), a load scale within the mesh's own error
     (as _within_mesh a first one), where the first effect alone leaves no more residual that
-    stays the same in every frame than that error (leaves_static_beyond): then the second
-    explains the mesh's sag, not physics. Against the converged body a west cable 2 mm slack
+    stays the same in every frame than that error (leaves_static_beyond) and names the
+    mismatch across frames (names_the_mismatch): then the second explains the mesh's sag,
+    not physics. Against the converged body a west cable 2 mm slack
     took gravity 1.061 tilted 1.1 degrees as its second effect, as well as a body 0.939 as
     stiff, and wrote it into the fitted robot file (docs/diagnosis.md, method 11)."""
     if len(result.selected) != 2:
@@ -523,8 +524,9 @@ def _second_within_mesh(result: Diagnosis, solutions: StateSolutions, cache: Sol
                                   <= max(1.0, bracket.load_scale) for scale in scales):
         return
     if leaves_static_beyond(first, static_mm(first.refit.field, result.robot.mesh.node_count),
-                            bracket.surface_rms_mm):
-        return
+                            bracket.surface_rms_mm) or not names_the_mismatch(
+            first, result.relative_nominal_mm, result.noise_floor_mm):
+        return  # the first alone would be a partial fit: the pair is judged as it stands
     result.within_mesh.append(
         ", ".join(f.candidate.hypotheses[-1].label for f in alike) + " as a second effect "
         f"(load scale g / E {', '.join(f'{scale:.3g}' for scale in scales)})")
