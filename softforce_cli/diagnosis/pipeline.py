@@ -506,9 +506,9 @@ def _second_within_mesh(result: Diagnosis, solutions: StateSolutions, cache: Sol
     (as _within_mesh a first one), where the first effect alone leaves no more residual that
     stays the same in every frame than that error (leaves_static_beyond) and names the
     mismatch across frames (names_the_mismatch): then the second explains the mesh's sag,
-    not physics. Against the converged body a west cable 2 mm slack
-    took gravity 1.061 tilted 1.1 degrees as its second effect, as well as a body 0.939 as
-    stiff, and wrote it into the fitted robot file (docs/diagnosis.md, method 11)."""
+    not physics. Against the converged body a west cable 2 mm slack took gravity 1.061
+    tilted 1.1 degrees as its second effect, as well as a body 0.939 as stiff, and wrote it
+    into the fitted robot file (docs/diagnosis.md, method 11)."""
     if len(result.selected) != 2:
         return
     first, pair = result.selected
