@@ -490,9 +490,7 @@ def _within_mesh(result: Diagnosis, solutions: StateSolutions, cache: SolveCache
     if bracket is None or systematic_mm(result.nominal.rms(), result.noise_floor_mm) > (
             bracket.surface_rms_mm):
         return
-    bound = bracket.load_scale
-    inside = [(final, scale) for final, scale in scales
-              if min(1.0, bound) <= scale <= max(1.0, bound)]
+    inside = [(final, scale) for final, scale in scales if bracket.holds(scale)]
     if inside:
         result.within_mesh = [f"{final.candidate.label} (load scale g / E {scale:.3g})"
                               for final, scale in inside]
@@ -520,8 +518,7 @@ def _second_within_mesh(result: Diagnosis, solutions: StateSolutions, cache: Sol
              if any(f.candidate.hypotheses[-1] is h for h in library)]
     scales = [scale for f in alike if (scale := second_load_scale(f, result.robot)) is not None]
     bracket = _mesh_bracket(result, solutions, cache) if scales else None
-    if bracket is None or not any(min(1.0, bracket.load_scale) <= scale
-                                  <= max(1.0, bracket.load_scale) for scale in scales):
+    if bracket is None or not any(map(bracket.holds, scales)):
         return
     if leaves_static_beyond(first, static_mm(first.refit.field, result.robot.mesh.node_count),
                             bracket.surface_rms_mm) or not names_the_mismatch(

@@ -193,19 +193,14 @@ class ExactModel:
         shared = (None if creep else fe_model_with_effects(robot, physics) if physics
                   else robot.nominal_fe_model)
         controls = tuple(spec.control for spec in robot.cable_specs)
-        solved: list[int] = []  # the groups solved, a first of each input without creep
-        twins: dict[int, int] = {}  # groups of equal inputs share a solve (without creep)
-        first_of_inputs: dict[bytes, int] = {}
-        for g, first in enumerate(firsts):
-            s = int(self.states.of_frame[first])
-            inputs = effective[first]
-            if not physics and np.allclose(inputs, solutions.actuation[s]):
-                continue
-            twin = g if creep else first_of_inputs.setdefault(inputs.tobytes(), g)
-            if twin == g:
-                solved.append(g)
-            else:
-                twins[g] = twin
+        # the groups whose nominal prediction does not do, each solved or sharing the solve of
+        # the first group of its inputs (a twin)
+        changed = [g for g, first in enumerate(firsts) if physics or not np.allclose(
+            effective[first], solutions.actuation[self.states.of_frame[first]])]
+        leader = dict(zip(changed, _leaders(effective, firsts[changed], creep, changed),
+                          strict=True))
+        solved = [g for g in changed if leader[g] == g]
+        twins = {g: first for g, first in leader.items() if first != g}
 
         def solve(index: int) -> tuple[np.ndarray, np.ndarray, int]:
             first = firsts[solved[index]]
@@ -285,13 +280,11 @@ class ExactModel:
             except SolverError:
                 return None
 
-        # groups of equal inputs (loading and unloading) share a solve, as in predict
-        keys = [g if creep else effective[first].tobytes() for g, first in enumerate(firsts)]
-        leader = {key: keys.index(key) for key in dict.fromkeys(keys)}
-        leaders = list(leader.values())
+        leader = _leaders(effective, firsts, creep, range(len(firsts)))
+        leaders = sorted(set(leader))
         solved = dict(zip(leaders, map_on_cores(lambda i: solve(leaders[i]), len(leaders)),
                           strict=True))
-        return [solved[leader[key]] for key in keys]
+        return [solved[g] for g in leader]
 
     def _with_effects(self, candidate: Candidate, values: np.ndarray
                       ) -> tuple[tuple[Effect, ...], tuple[Effect, ...], np.ndarray, bool]:
@@ -355,6 +348,15 @@ class ExactModel:
         return measure(self.points_mm, prediction.positions_mm, prediction.of_frame,
                        robot.mesh.surface_nodes, robot.mesh.surface_faces,
                        self.basis.robot_from_camera.translation_mm)
+
+
+def _leaders(effective: np.ndarray, firsts: np.ndarray, creep: bool, groups) -> list[int]:
+    """Per group of `groups` (its first frame in `firsts`), the group whose solve it shares:
+    the first of them with the same effective inputs (loading and unloading), itself with
+    creep (its hold time is its own)."""
+    first_of: dict[bytes, int] = {}
+    return [g if creep else first_of.setdefault(effective[first].tobytes(), g)
+            for g, first in zip(groups, firsts, strict=True)]
 
 
 def _column_changes(candidate: Candidate, values: np.ndarray, hold_s: float,

@@ -284,6 +284,10 @@ class ElementBracket:
     load_scale: float
     surface_rms_mm: float
 
+    def holds(self, load_scale: float) -> bool:
+        """Whether a load scale g / E lies between 1 and the other element's."""
+        return min(1.0, self.load_scale) <= load_scale <= max(1.0, self.load_scale)
+
 
 def element_bracket(solutions: StateSolutions, cache: SolveCache) -> ElementBracket | None:
     """The ElementBracket of the accurate model of `solutions` (one more solve, cached);
