@@ -12,7 +12,7 @@ a rerun continues where the last stopped. `--table` prints the markdown table of
 
     .venv/bin/python benchmarks/study_diagnosis.py [--cases NAME,...] [--seeds 3]
         [--first-seed 1] [--redo] [--recordings-only] [--table] [--markers] [--self]
-        [--converged [--finer-estimator]]
+        [--converged [--finer-estimator]] [--other-timeline]
 
 --markers: the recordings publish the robot's nine markers too (/markers, 0.5 mm noise), as
 a setup calibrated from markers would; their cases are kept as NAME+markers. The sensor's
@@ -26,6 +26,10 @@ what goes wrong there is the method's, not the mesh's.
 P2-P0 element on the 4.8 mm mesh (sample_data/diamond_fine, docs/locking.md's reference,
 sagging 14.55 mm under gravity where the 6.5 mm P2 body sags 13.18 and the coarse P2 model
 12.84, corotational), cases NAME+converged.
+
+--other-timeline: the cases on a second timeline the method was not tuned on (the south and
+east cables ramped, then pairs of cables: OTHER_TIMELINE) seen by a 640x480 camera, cases
+NAME+t2: what a user's recording, which no one here chose, asks of it.
 
 --finer-estimator (with --converged only): diagnose with a copy of the 6.5 mm mesh's robot
 file (sample_data/diamond_truth, P2, 8,674 tets) instead of the coarse one, cases
@@ -58,6 +62,11 @@ RESULTS = FOLDER / "results.jsonl"
 TIMELINE = (([0, 0, 0, 0], 2), ([3, 0, 0, 0], 2), ([6, 0, 0, 0], 3), ([9, 0, 0, 0], 2),
             ([6, 0, 0, 0], 2), ([3, 0, 0, 0], 2), ([0, 6, 0, 6], 2), ([6, 6, 6, 6], 3),
             ([0, 0, 0, 0], 2))
+# The second timeline (--other-timeline) and its camera: 22 frames, nine distinct inputs.
+OTHER_TIMELINE = (([0, 0, 0, 0], 2), ([0, 0, 4, 0], 2), ([0, 0, 8, 0], 3), ([0, 0, 4, 0], 2),
+                  ([0, 0, 0, 5], 2), ([0, 0, 0, 9], 2), ([0, 0, 0, 5], 2), ([5, 5, 0, 0], 2),
+                  ([2, 7, 7, 2], 3), ([0, 0, 0, 0], 2))
+OTHER_CAMERA = (640, 480)
 # case name -> (expected verdict, expected target, [[effect]] TOML body or a load, parameter
 # checked, its true value)
 CASES: dict[str, tuple] = {
@@ -74,6 +83,9 @@ CASES: dict[str, tuple] = {
                            'region = "south"\nscale = 0.5', "scale", 0.5),
     "regional_south_2": ("regional_stiffness", "south", 'name = "regional_stiffness"\n'
                          'region = "south"\nscale = 2.0', "scale", 2.0),
+    # an arm its own cable pulls in OTHER_TIMELINE (the east one)
+    "regional_east_0.6": ("regional_stiffness", "east", 'name = "regional_stiffness"\n'
+                          'region = "east"\nscale = 0.6', "scale", 0.6),
     "gravity_1.3": ("gravity", None, 'name = "gravity"\nscale = 1.3', "scale", 1.3),
     "gravity_tilt_10": ("gravity", None, 'name = "gravity"\ntilt_x_deg = 10.0',
                         "tilt_x_deg", 10.0),
@@ -130,13 +142,25 @@ CONVERGED = "+converged"
 # A case diagnosed with the 6.5 mm mesh's robot file (TRUTH_ROBOT) instead of COARSE is
 # named with this suffix (after CONVERGED: its truth must be on another mesh).
 FINER = "+finer"
+# A case on OTHER_TIMELINE and OTHER_CAMERA is named with this suffix (right after the
+# library's name: the others follow it).
+OTHER = "+t2"
 MARKERS_TOML = "[markers]\npublish = true\nsigma_mm = 0.5\n\n"
 
 
 def plain_case(case: str) -> str:
     """The library's case a study case is a variant of (without its suffixes)."""
     return (case.removesuffix(FINER).removesuffix(CONVERGED).removesuffix(SELF)
-            .removesuffix(MARKED))
+            .removesuffix(MARKED).removesuffix(OTHER))
+
+
+def timeline(case: str) -> tuple:
+    """The (actuation, frames) of a case's recording."""
+    return OTHER_TIMELINE if plain_case(case) + OTHER in case else TIMELINE
+
+
+def frame_count(case: str) -> int:
+    return sum(repeat for _, repeat in timeline(case))
 
 
 def coarse_variant(name: str, old: str, new: str, source: Path = COARSE) -> Path:
@@ -172,19 +196,17 @@ def scenario_text(case: str, seed: int) -> str:
     law = "" if case.endswith(SELF) else f'law = "{TRUTH_LAW}"\n'
     load = f"load = {HIDDEN_LOAD}\n" if body == "load" else ""
     frames = "\n".join(f"[[frame]]\nactuation = {[float(v) for v in a]}\nrepeat = {n}\n{load}"
-                       for a, n in TIMELINE)
+                       for a, n in timeline(case))
     effect = f"[[effect]]\n{body}\n\n" if body and body != "load" else ""
+    width, height = OTHER_CAMERA if timeline(case) is OTHER_TIMELINE else (424, 240)
     return (f'name = "{case}"\nrobot = "{robot}"\n{law}seed = {seed}\n'
-            "frame_interval_s = 0.5\n\n[camera]\nwidth = 424\nheight = 240\n\n"
+            f"frame_interval_s = 0.5\n\n[camera]\nwidth = {width}\nheight = {height}\n\n"
             f"{MARKERS_TOML if MARKED in case else ''}{effect}{frames}")
 
 
 def softforce(*args) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "softforce_cli", *map(str, args)],
                           capture_output=True, text=True, check=False)
-
-
-FRAMES = sum(repeat for _, repeat in TIMELINE)
 
 
 def recorded_frames(recording: Path) -> int:
@@ -207,8 +229,8 @@ def make_recording(case: str, seed: int, recording: Path) -> str | None:
     made = softforce("simulate", scenario, "-o", partial, "--force")
     if made.returncode != 0:
         return made.stderr.strip()[-300:]
-    if (frames := recorded_frames(partial)) != FRAMES:
-        return f"simulate wrote {frames} of {FRAMES} frames"
+    if (frames := recorded_frames(partial)) != frame_count(case):
+        return f"simulate wrote {frames} of {frame_count(case)} frames"
     # the truth file first: a recording without its truth is remade, never read
     truth_path_for(partial).replace(truth_path_for(recording))
     partial.replace(recording)
@@ -219,7 +241,8 @@ def ensure_recording(case: str, seed: int, recording: Path) -> str | None:
     """Make the case's recording unless a complete one of the same scenario exists; an error
     line or None."""
     scenario = recording.with_suffix(".toml")
-    if (recording.exists() and recorded_frames(recording) == FRAMES and scenario.exists()
+    if (recording.exists() and recorded_frames(recording) == frame_count(case)
+            and scenario.exists()
             and scenario.read_text() == scenario_text(case, seed)):
         return None
     return make_recording(case, seed, recording)
@@ -321,6 +344,8 @@ def main() -> None:
                         help="the truth is the estimator's own model (cases NAME+self)")
     parser.add_argument("--converged", action="store_true",
                         help="the truth is P2-P0 on the 4.8 mm mesh (cases NAME+converged)")
+    parser.add_argument("--other-timeline", action="store_true",
+                        help="the second timeline and a 640x480 camera (cases NAME+t2)")
     parser.add_argument("--finer-estimator", action="store_true",
                         help="with --converged: diagnose with the 6.5 mm mesh's robot file "
                         "(cases NAME+converged+finer)")
@@ -336,6 +361,8 @@ def main() -> None:
     cases = args.cases.split(",") if args.cases else list(CASES)
     if unknown := [c for c in cases if c not in CASES]:
         raise SystemExit(f"unknown case(s): {', '.join(unknown)}")
+    if args.other_timeline:
+        cases = [c + OTHER for c in cases]
     if args.markers:
         cases = [c + MARKED for c in cases]
     if args.own_model:
