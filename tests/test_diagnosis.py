@@ -710,7 +710,7 @@ def test_a_fold_that_leaves_out_all_the_candidates_information_steps_nowhere():
     """A north cable 4 mm slack on a timeline that pulls it past its slack in one segment
     alone: leaving that segment out, the refit's Jacobian is zero on the rest. The fold keeps
     the fitted value (its residual there is the fit's), where a singular solve had ended
-    the whole diagnosis with a traceback; the other folds still refit."""
+    the whole diagnosis with a traceback."""
     segments = np.repeat(np.arange(4), 2)  # 8 frames, 4 segments
     frame = np.repeat(np.arange(8), 3)
     node = np.tile(np.arange(3), 8)
@@ -723,7 +723,8 @@ def test_a_fold_that_leaves_out_all_the_candidates_information_steps_nowhere():
     result = held_out(Candidate((hypothesis,)), no_table, field, segments, np.ones(1), False,
                       sensitivity[:, None])
     assert np.all(np.isfinite(result.after_ms))
-    # the left-out segment 2 keeps the fit's residual; segment 0's fold refits 0.3 mm
+    # the left-out segment 2 keeps the fit's residual; segment 0's fold steps on segment
+    # 2's entries, which leaves segment 0 (J = 0 there) as it was
     np.testing.assert_allclose(result.after_ms[2], np.mean(residual[segments[frame] == 2] ** 2))
     np.testing.assert_allclose(result.after_ms[0], np.mean(residual[segments[frame] == 0] ** 2))
 

@@ -408,10 +408,16 @@ def _screen_hypotheses(result: Diagnosis, judge: _Judge) -> None:
 def _first_effects(result: Diagnosis, judge: _Judge) -> None:
     """The best screened candidates refitted on the exact model into result.finals (best
     first), and, when none of them names the mismatch while a structured residual remains,
-    the next few (fallback_candidates)."""
+    the next few (fallback_candidates), then the best on the region that holds the residual
+    (located_candidates)."""
     floor, table = judge.floor, judge.table
     relative_nominal = result.relative_nominal_mm
     structured = _structured(judge.nominal.rms(), relative_nominal, floor)
+
+    def unnamed() -> bool:
+        return structured and not any(names_the_mismatch(f, relative_nominal, floor)
+                                      for f in result.finals)
+
     agreeing = [s for s in _best_per_effect(result.screened)
                 if _table_agrees(s.table_misfit_mm, table)]
     best = [s for s in agreeing if worth_refitting(s.heldout, floor)][:REFIT_COUNT]
@@ -423,14 +429,12 @@ def _first_effects(result: Diagnosis, judge: _Judge) -> None:
         best = [s for s in agreeing if worth_refitting(s.heldout, floor, size=False)
                 ][:REFIT_COUNT]
     judge.refit(result, best)
-    if structured and not any(names_the_mismatch(f, relative_nominal, floor)
-                              for f in result.finals):
+    if unnamed():
         # still heading for `unexplained`: the refit failed or fell short of a name (a
         # softer north arm fits part of a south arm twice as stiff, which screens just
         # behind it and is named once refitted): the exact model judges the next few
         judge.refit(result, fallback_candidates(result.screened, best, table))
-    if structured and not any(names_the_mismatch(f, relative_nominal, floor)
-                              for f in result.finals):
+    if unnamed():
         # then the region that holds the residual: an east arm 0.6 as stiff, pulled by
         # its own cable, screened at 0.81 with 13% of the relative excess, a gain of 0.4
         # standard errors over the segments, and was named 0.607 once refitted (on the
