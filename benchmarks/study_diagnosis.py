@@ -12,7 +12,7 @@ a rerun continues where the last stopped. `--table` prints the markdown table of
 
     .venv/bin/python benchmarks/study_diagnosis.py [--cases NAME,...] [--seeds 3]
         [--first-seed 1] [--redo] [--recordings-only] [--table] [--markers] [--self]
-        [--converged [--finer-estimator]] [--other-timeline]
+        [--converged [--finer-estimator]] [--other-timeline] [--camera WxH]
 
 --markers: the recordings publish the robot's nine markers too (/markers, 0.5 mm noise), as
 a setup calibrated from markers would; their cases are kept as NAME+markers. The sensor's
@@ -30,6 +30,10 @@ sagging 14.55 mm under gravity where the 6.5 mm P2 body sags 13.18 and the coars
 --other-timeline: the cases on a second timeline the method was not tuned on (the south and
 east cables ramped, then pairs of cables: OTHER_TIMELINE) seen by a 640x480 camera, cases
 NAME+t2: what a user's recording, which no one here chose, asks of it.
+
+--camera WxH: the recordings seen by a camera of that size instead of the timeline's
+(424x240, or 640x480 with --other-timeline), cases NAME+camWxH (after +t2): the converged
+body's clean recording at 640x480 and 1280x720 (docs/diagnosis.md, "Limits").
 
 --finer-estimator (with --converged only): diagnose with a copy of the 6.5 mm mesh's robot
 file (sample_data/diamond_truth, P2, 8,674 tets) instead of the coarse one, cases
@@ -145,11 +149,15 @@ FINER = "+finer"
 # A case on OTHER_TIMELINE and OTHER_CAMERA is named with this suffix (right after the
 # library's name: the others follow it).
 OTHER = "+t2"
+# A case seen by another camera than its timeline's (--camera WxH) carries "+camWxH" right
+# after the library's name and OTHER.
+CAMERA = re.compile(r"\+cam(\d+)x(\d+)")
 MARKERS_TOML = "[markers]\npublish = true\nsigma_mm = 0.5\n\n"
 
 
 def plain_case(case: str) -> str:
     """The library's case a study case is a variant of (without its suffixes)."""
+    case = CAMERA.sub("", case)
     return (case.removesuffix(FINER).removesuffix(CONVERGED).removesuffix(SELF)
             .removesuffix(MARKED).removesuffix(OTHER))
 
@@ -161,6 +169,13 @@ def timeline(case: str) -> tuple:
 
 def frame_count(case: str) -> int:
     return sum(repeat for _, repeat in timeline(case))
+
+
+def camera_size(case: str) -> tuple[int, int]:
+    """(width, height) of a case's camera: --camera's, else its timeline's."""
+    if (size := CAMERA.search(case)) is not None:
+        return int(size[1]), int(size[2])
+    return OTHER_CAMERA if timeline(case) is OTHER_TIMELINE else (424, 240)
 
 
 def coarse_variant(name: str, old: str, new: str, source: Path = COARSE) -> Path:
@@ -198,7 +213,7 @@ def scenario_text(case: str, seed: int) -> str:
     frames = "\n".join(f"[[frame]]\nactuation = {[float(v) for v in a]}\nrepeat = {n}\n{load}"
                        for a, n in timeline(case))
     effect = f"[[effect]]\n{body}\n\n" if body and body != "load" else ""
-    width, height = OTHER_CAMERA if timeline(case) is OTHER_TIMELINE else (424, 240)
+    width, height = camera_size(case)
     return (f'name = "{case}"\nrobot = "{robot}"\n{law}seed = {seed}\n'
             f"frame_interval_s = 0.5\n\n[camera]\nwidth = {width}\nheight = {height}\n\n"
             f"{MARKERS_TOML if MARKED in case else ''}{effect}{frames}")
@@ -346,6 +361,8 @@ def main() -> None:
                         help="the truth is P2-P0 on the 4.8 mm mesh (cases NAME+converged)")
     parser.add_argument("--other-timeline", action="store_true",
                         help="the second timeline and a 640x480 camera (cases NAME+t2)")
+    parser.add_argument("--camera", metavar="WxH",
+                        help="another camera size than the timeline's (cases NAME+camWxH)")
     parser.add_argument("--finer-estimator", action="store_true",
                         help="with --converged: diagnose with the 6.5 mm mesh's robot file "
                         "(cases NAME+converged+finer)")
@@ -363,6 +380,10 @@ def main() -> None:
         raise SystemExit(f"unknown case(s): {', '.join(unknown)}")
     if args.other_timeline:
         cases = [c + OTHER for c in cases]
+    if args.camera:
+        if (size := re.fullmatch(r"(\d+)x(\d+)", args.camera)) is None:
+            parser.error(f"--camera {args.camera}: expected WIDTHxHEIGHT, e.g. 640x480")
+        cases = [f"{c}+cam{size[1]}x{size[2]}" for c in cases]
     if args.markers:
         cases = [c + MARKED for c in cases]
     if args.own_model:

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from softforce_cli.diagnosis.fitting import Candidate
-from softforce_cli.diagnosis.refit import ExactModel, Refit
+from softforce_cli.diagnosis.refit import ExactModel, Prediction, Refit
 from softforce_cli.diagnosis.residuals import (
     Field,
     node_rms,
@@ -60,6 +60,14 @@ class FitBracket:
                  <= MESH_REST_SHARE * self.relative_mm)
                 and (static_named or self.rest_static_mm <= MESH_REST_SHARE * self.static_mm))
 
+    def holds_mismatch(self, floor_mm: float) -> bool:
+        """Whether what is left (above the noise floor across frames) is no larger than the
+        disagreement itself, in both parts: the two elements bracket the converged body, so
+        the robot's element is no further from it than from the other element. A bound for
+        the nominal model's mismatch (nominal_bracket); a fit is held to MESH_REST_SHARE."""
+        return (systematic_mm(self.rest_relative_mm, floor_mm) <= self.relative_mm
+                and self.rest_static_mm <= self.static_mm)
+
     def as_dict(self) -> dict:
         return {"relative_mm": round(self.relative_mm, 3), "static_mm": round(self.static_mm, 3),
                 "rest_relative_mm": round(self.rest_relative_mm, 3),
@@ -83,7 +91,23 @@ def fit_bracket(exact: ExactModel, fitted: Refit) -> FitBracket | None:
                                     if k))
         values = np.concatenate([v for v, k in zip(parts, kept, strict=True) if k])
         prediction = exact.predict(candidate, values)
-    others = exact.other_element(candidate, values, prediction)
+    return _bracket(exact, exact.other_element(candidate, values, prediction), prediction,
+                    field)
+
+
+def nominal_bracket(exact: ExactModel) -> FitBracket | None:
+    """The FitBracket of the nominal model (no effect): the two elements' disagreement at
+    the robot file's own physics, and the nominal residual as what is left; None with fewer
+    than two groups solved."""
+    prediction = exact.nominal_prediction
+    return _bracket(exact, exact.other_element(None, None, prediction), prediction,
+                    exact.nominal_field)
+
+
+def _bracket(exact: ExactModel, others: list[np.ndarray | None], prediction: Prediction,
+             field: Field) -> FitBracket | None:
+    """The FitBracket of a prediction, the other element's nodes per group (None: not
+    solved) and the residual field left there."""
     solved = np.array([positions is not None for positions in others])
     if solved.sum() < 2:
         return None

@@ -248,13 +248,13 @@ class ExactModel:
                                               self.basis.robot_from_camera).reshape(shape)
         return Prediction(predicted, of_frame, solves, nonlinear)
 
-    def other_element(self, candidate: Candidate, values: np.ndarray, prediction: Prediction
-                      ) -> list[np.ndarray | None]:
+    def other_element(self, candidate: Candidate | None, values: np.ndarray | None,
+                      prediction: Prediction) -> list[np.ndarray | None]:
         """Per group of `prediction` (this model's at `values`, a candidate without camera
-        effects), the mesh nodes (n, 3) mm of the mesh's other quadratic element
-        (solves.other_element) with the same effects, each solved from this model's
-        equilibrium (once per effective input without creep, as predict solves); None where
-        Newton's method finds no equilibrium near it."""
+        effects; None: the nominal model, nominal_prediction), the mesh nodes (n, 3) mm of
+        the mesh's other quadratic element (solves.other_element) with the same effects, each
+        solved from this model's equilibrium (once per effective input without creep, as
+        predict solves); None where Newton's method finds no equilibrium near it."""
         solutions = self.solutions
         robot = solutions.robot
         other = other_element(robot)
@@ -286,11 +286,12 @@ class ExactModel:
                           strict=True))
         return [solved[g] for g in leader]
 
-    def _with_effects(self, candidate: Candidate, values: np.ndarray
+    def _with_effects(self, candidate: Candidate | None, values: np.ndarray | None
                       ) -> tuple[tuple[Effect, ...], tuple[Effect, ...], np.ndarray, bool]:
-        """The candidate's effects at `values`, their physics, every frame's effective cable
-        inputs (t, a) and whether the physics creeps (a group per hold time, _groups)."""
-        effects = candidate.effects(values)
+        """The candidate's effects at `values` (none without a candidate), their physics,
+        every frame's effective cable inputs (t, a) and whether the physics creeps (a group
+        per hold time, _groups)."""
+        effects = () if candidate is None else candidate.effects(values)
         physics = effects_of_kind(effects, "physics")
         cables = [spec.name for spec in self.solutions.robot.cable_specs]
         creep = any(e.name == "viscoelastic_creep" for e in physics)
@@ -338,10 +339,15 @@ class ExactModel:
         return solution
 
     @cached_property
+    def nominal_prediction(self) -> Prediction:
+        """The prediction of the nominal model (every candidate at its neutral values): the
+        states' own solves."""
+        return Prediction(self.solutions.predicted_mm, self.states.of_frame, 0)
+
+    @cached_property
     def nominal_field(self) -> Field:
-        """The residual field of the nominal prediction (every candidate at its neutral
-        values)."""
-        return self.field(Prediction(self.solutions.predicted_mm, self.states.of_frame, 0))
+        """The residual field of the nominal prediction."""
+        return self.field(self.nominal_prediction)
 
     def field(self, prediction: Prediction) -> Field:
         robot = self.solutions.robot

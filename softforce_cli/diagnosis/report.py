@@ -15,7 +15,7 @@ from softforce_cli import __version__
 from softforce_cli.diagnosis.fitting import Candidate
 from softforce_cli.diagnosis.pipeline import Diagnosis, Final, Screened
 from softforce_cli.diagnosis.refit import NoEquilibriumError
-from softforce_cli.diagnosis.selection import excess_share, explained_mm
+from softforce_cli.diagnosis.selection import excess_share, explained_mm, systematic_mm
 from softforce_cli.diagnosis.support import rim_heights_mm
 from softforce_cli.model.effects import EFFECTS, Effect, effect_toml
 from softforce_cli.model.robot import Robot
@@ -207,6 +207,8 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
                 lines.append("seen by the markers only: the point clouds show no structured "
                              "mismatch (a camera turned about its axis or moved sideways "
                              "slides the surfaces along themselves)")
+    elif diagnosis.mismatch_within_mesh:
+        lines.append(mismatch_within_mesh_line(diagnosis))
     elif diagnosis.verdict == "none":
         beyond = "beyond the mesh's own error" if diagnosis.within_mesh else "clearly"
         lines.append(f"no effect of the library improves the held-out fit {beyond}: the model "
@@ -275,6 +277,22 @@ def mesh_rest_line(diagnosis: Diagnosis) -> str:
             f"across frames, {bracket.static_mm:.2f} mm static{unsolved}): the mesh cannot "
             "resolve the body there and is the likely cause of the rest (a finer mesh would "
             "tell)")
+
+
+def mismatch_within_mesh_line(diagnosis: Diagnosis) -> str:
+    """The summary's line for `none` where a mismatch no effect names is no larger than the
+    mesh's own error (pipeline._mismatch_within_mesh)."""
+    bracket = diagnosis.nominal_bracket
+    floor = diagnosis.noise_floor_mm
+    partial = (f"; {', '.join(diagnosis.partial)} fits part of it, too little to name"
+               if diagnosis.partial else "")
+    return (f"the model explains the recording to {diagnosis.evidence['rms_nominal_mm']:.2f} mm "
+            f"RMS (noise floor {floor:.2f} mm), within this mesh's own error: it is "
+            f"{systematic_mm(bracket.rest_relative_mm, floor):.2f} mm above the noise across "
+            f"frames and {bracket.rest_static_mm:.2f} mm static from the recording, where this "
+            f"mesh's two quadratic elements disagree by {bracket.relative_mm:.2f} and "
+            f"{bracket.static_mm:.2f} mm{partial}: the mesh is the likely cause, not physics "
+            "(a finer mesh would tell)")
 
 
 def _values_text(parameters: dict[str, dict[str, Any]]) -> str:
