@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from types import SimpleNamespace
 
 import numpy as np
@@ -18,7 +19,11 @@ from softforce_cli.diagnosis.fitting import Candidate
 from softforce_cli.diagnosis.hypotheses import Hypothesis
 from softforce_cli.diagnosis.pipeline import Diagnosis
 from softforce_cli.diagnosis.refit import ExactModel, Refit
-from softforce_cli.diagnosis.report import mesh_rest_line, mismatch_within_mesh_line
+from softforce_cli.diagnosis.report import (
+    mesh_rest_line,
+    mismatch_within_mesh_line,
+    static_beyond_line,
+)
 from softforce_cli.diagnosis.residuals import Field, surface_normals
 from softforce_cli.diagnosis.sensitivities import column_set
 from softforce_cli.diagnosis.solves import ElementBracket, StateSolutions
@@ -250,3 +255,46 @@ def test_the_summary_says_the_mismatch_is_the_meshs():
         assert figure in line
     diagnosis.partial = []
     assert "1.36 mm: the mesh is the likely cause" in mismatch_within_mesh_line(diagnosis)
+
+
+# The converged body's camera moved 3 mm sideways at 640x480 (floor 0.145 mm): the nominal
+# model and the camera's fit, each with what the elements disagree by there.
+CAMERA_NOMINAL = FitBracket(relative_mm=0.17, static_mm=1.35, rest_relative_mm=0.21,
+                            rest_static_mm=1.60, groups=9, unsolved=0)
+CAMERA_FIT = FitBracket(relative_mm=0.18, static_mm=1.57, rest_relative_mm=0.19,
+                        rest_static_mm=0.27, groups=9, unsolved=0)
+
+
+@pytest.mark.parametrize(("nominal", "fit", "static_named", "expected"), [
+    ({}, {}, True, True),
+    # a clean recording: the nominal model's static residual within the mesh's too (`none`)
+    ({"rest_static_mm": 1.06}, {}, True, False),
+    # a hidden mass: what changes across frames beyond the mesh's without the fit
+    ({"rest_relative_mm": 0.61}, {"rest_relative_mm": 0.35}, True, False),
+    # the fit leaving more across frames than the elements disagree by
+    ({}, {"rest_relative_mm": 0.26}, True, False),
+    # ... or too much static: more than half the disagreement where the limit is passed
+    ({}, {"rest_static_mm": 0.9}, False, False),
+    ({}, {"rest_static_mm": 0.7}, False, True),
+])
+def test_a_fit_of_what_every_frame_shares_leaves_the_rest_to_the_mesh(nominal, fit,
+                                                                      static_named, expected):
+    """(FitBracket.explains_static_beyond) Where the nominal model is beyond the mesh's own
+    error only in what every frame shares, a fit may leave across frames what the elements
+    disagree by (sqrt(0.19^2 - 0.145^2) = 0.12 <= 0.18), not half of it (0.09)."""
+    fitted = dataclasses.replace(CAMERA_FIT, **fit)
+    assert not fitted.explains_rest(0.145, False, static_named)
+    assert fitted.explains_static_beyond(dataclasses.replace(CAMERA_NOMINAL, **nominal), 0.145,
+                                         static_named) is expected
+
+
+def test_the_summary_says_only_the_static_shape_was_beyond_the_mesh():
+    """The line of a fit named since only what every frame shares was beyond the mesh."""
+    diagnosis = Diagnosis(None, None, noise_floor_mm=0.145, fit_bracket=CAMERA_FIT,
+                          nominal_bracket=CAMERA_NOMINAL, mesh_rest=True,
+                          mesh_rest_static=True)
+    line = static_beyond_line(diagnosis)
+    for figure in ("0.15 mm above the noise across frames", "1.60 mm static",
+                   "0.17 and 1.35 mm", "0.27 mm static is left", "0.12 mm across frames",
+                   "0.18 mm there"):
+        assert figure in line

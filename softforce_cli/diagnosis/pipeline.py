@@ -164,10 +164,14 @@ class Diagnosis:
     # left to the mesh
     fit_bracket: FitBracket | None = None
     mesh_rest: bool = False
-    # where no effect is named and a mismatch remains, the two elements' disagreement at the
-    # nominal model, and whether the mismatch is within it (_mismatch_within_mesh): then
-    # `none`, not `unexplained`
+    # ... named since only what every frame shares was beyond the mesh's error without it
+    # (FitBracket.explains_static_beyond, against nominal_bracket)
+    mesh_rest_static: bool = False
+    # the two elements' disagreement at the nominal model (_nominal_bracket), asked for a fit
+    # with too much left to name or where no effect is named and a mismatch remains; whether
+    # the mismatch is within it (_mismatch_within_mesh): then `none`, not `unexplained`
     nominal_bracket: FitBracket | None = None
+    nominal_bracket_sought: bool = False
     mismatch_within_mesh: bool = False
     # a camera effect's held-out RMS (mm) with the mesh's allowance, when the first selected
     # effect was a camera's (_camera_with_the_mesh): {camera label: mm}
@@ -897,8 +901,17 @@ def _mismatch_within_mesh(result: Diagnosis, exact: ExactModel, solutions: State
     floor = result.noise_floor_mm
     if bracket is None or systematic_mm(result.nominal.rms(), floor) > bracket.surface_rms_mm:
         return False
-    result.nominal_bracket = nominal_bracket(exact)
-    return result.nominal_bracket is not None and result.nominal_bracket.holds_mismatch(floor)
+    nominal = _nominal_bracket(result, exact)
+    return nominal is not None and nominal.holds_mismatch(floor)
+
+
+def _nominal_bracket(result: Diagnosis, exact: ExactModel) -> FitBracket | None:
+    """result.nominal_bracket (fit_bracket.nominal_bracket), solved the first time it is
+    asked for only."""
+    if not result.nominal_bracket_sought:
+        result.nominal_bracket = nominal_bracket(exact)
+        result.nominal_bracket_sought = True
+    return result.nominal_bracket
 
 
 def _structured(absolute_mm: float, relative_mm: float, floor: float) -> bool:
@@ -1022,10 +1035,16 @@ def _verdict(result: Diagnosis, judge: _Judge, solutions: StateSolutions,
     relative_named = last is not None and names_the_mismatch(last, relative_before, floor)
     partial = last is not None and (static_beyond or not relative_named)
     if partial and last.screened.channel == "clouds":
-        # too much left to name it, unless the mesh cannot resolve the body at the fit
-        result.fit_bracket = fit_bracket(judge.exact, last.refit)
-        result.mesh_rest = result.fit_bracket is not None and result.fit_bracket.explains_rest(
+        # too much left to name it, unless the mesh cannot resolve the body at the fit, or
+        # only what every frame shares was beyond the mesh's error to begin with
+        bracket = result.fit_bracket = fit_bracket(judge.exact, last.refit)
+        result.mesh_rest = bracket is not None and bracket.explains_rest(
             floor, relative_named, not static_beyond)
+        if bracket is not None and not result.mesh_rest:
+            at_nominal = _nominal_bracket(result, judge.exact)
+            result.mesh_rest_static = at_nominal is not None and bracket.explains_static_beyond(
+                at_nominal, floor, not static_beyond)
+            result.mesh_rest = result.mesh_rest_static
         partial = not result.mesh_rest
     if partial:
         # fitted, accepted, but most of what it fits is something else: not a name to give
@@ -1111,10 +1130,10 @@ def _verdict(result: Diagnosis, judge: _Judge, solutions: StateSolutions,
         # the elements' disagreement at a fit with too much left to name on its own, and
         # whether that rest is left to the mesh (the fit named); None: not needed
         "mesh_at_fit": (None if result.fit_bracket is None else
-                        {**result.fit_bracket.as_dict(), "explains_rest": result.mesh_rest}),
-        # where no effect is named and a mismatch remains: the elements' disagreement at the
-        # nominal model, its rest the nominal residual, and whether that is within it (the
-        # verdict `none`); None: not needed
+                        {**result.fit_bracket.as_dict(), "explains_rest": result.mesh_rest,
+                         "static_beyond_only": result.mesh_rest_static}),
+        # the elements' disagreement at the nominal model, its rest the nominal residual,
+        # and whether that is within it (the verdict `none`); None: not needed
         "mesh_at_nominal": (None if result.nominal_bracket is None else
                             {**result.nominal_bracket.as_dict(),
                              "holds_mismatch": result.mismatch_within_mesh}),

@@ -202,7 +202,8 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
                     f"element on the mesh); alone: {_values_text(alone['parameters'])}, "
                     f"held-out {alone['heldout_rms_after_mm']:.2f} mm")
             if diagnosis.mesh_rest and final is diagnosis.fitted:
-                lines.append(mesh_rest_line(diagnosis))
+                lines.append(static_beyond_line(diagnosis) if diagnosis.mesh_rest_static
+                             else mesh_rest_line(diagnosis))
             if markers:
                 lines.append("seen by the markers only: the point clouds show no structured "
                              "mismatch (a camera turned about its axis or moved sideways "
@@ -277,6 +278,23 @@ def mesh_rest_line(diagnosis: Diagnosis) -> str:
             f"across frames, {bracket.static_mm:.2f} mm static{unsolved}): the mesh cannot "
             "resolve the body there and is the likely cause of the rest (a finer mesh would "
             "tell)")
+
+
+def static_beyond_line(diagnosis: Diagnosis) -> str:
+    """The summary's line for a fit named though it leaves more than the noise across
+    frames, since without it only what every frame shares was beyond the mesh's own error
+    (FitBracket.explains_static_beyond)."""
+    fitted, nominal = diagnosis.fit_bracket, diagnosis.nominal_bracket
+    floor = diagnosis.noise_floor_mm
+    return (f"without it the model is {systematic_mm(nominal.rest_relative_mm, floor):.2f} mm "
+            f"above the noise across frames (noise floor {floor:.2f} mm) and "
+            f"{nominal.rest_static_mm:.2f} mm static from the recording, where this mesh's two "
+            f"quadratic elements disagree by {nominal.relative_mm:.2f} and "
+            f"{nominal.static_mm:.2f} mm: only the shape every frame shares was beyond the "
+            f"mesh's own error; with it {fitted.rest_static_mm:.2f} mm static is left, and "
+            f"{systematic_mm(fitted.rest_relative_mm, floor):.2f} mm across frames, the mesh's "
+            f"(its elements disagree by {fitted.relative_mm:.2f} mm there with the fitted "
+            "values; a finer mesh would tell)")
 
 
 def mismatch_within_mesh_line(diagnosis: Diagnosis) -> str:
