@@ -52,13 +52,21 @@ class FitBracket:
     groups: int
     unsolved: int
 
+    def leaves_across(self, floor_mm: float, share: float = 1.0) -> bool:
+        """Whether what is left across frames, above the noise floor, is within `share` of
+        what the elements disagree by there."""
+        return systematic_mm(self.rest_relative_mm, floor_mm) <= share * self.relative_mm
+
+    def leaves_static(self, share: float = 1.0) -> bool:
+        """Whether what every frame shares is within `share` of the elements' disagreement."""
+        return self.rest_static_mm <= share * self.static_mm
+
     def explains_rest(self, floor_mm: float, relative_named: bool, static_named: bool) -> bool:
         """Whether what the fit leaves, across frames (above the noise floor) and in every
         frame, is within MESH_REST_SHARE of this disagreement, where it is too much to name
         the fit on its own (`relative_named`, `static_named`: held-out, all frames)."""
-        return ((relative_named or systematic_mm(self.rest_relative_mm, floor_mm)
-                 <= MESH_REST_SHARE * self.relative_mm)
-                and (static_named or self.rest_static_mm <= MESH_REST_SHARE * self.static_mm))
+        return ((relative_named or self.leaves_across(floor_mm, MESH_REST_SHARE))
+                and (static_named or self.leaves_static(MESH_REST_SHARE)))
 
     def explains_static_beyond(self, nominal: FitBracket, floor_mm: float,
                                static_named: bool) -> bool:
@@ -70,18 +78,16 @@ class FitBracket:
         the mesh's error at rest). A camera moved 3 mm sideways in the converged body, seen at
         640x480: 0.12 mm across frames above the noise both before and after its fit, where
         the elements disagree by 0.17-0.18 mm; 1.6 mm static before, 0.27 mm after."""
-        return (systematic_mm(nominal.rest_relative_mm, floor_mm) <= nominal.relative_mm
-                and nominal.rest_static_mm > nominal.static_mm
-                and systematic_mm(self.rest_relative_mm, floor_mm) <= self.relative_mm
-                and (static_named or self.rest_static_mm <= MESH_REST_SHARE * self.static_mm))
+        return (nominal.leaves_across(floor_mm) and not nominal.leaves_static()
+                and self.leaves_across(floor_mm)
+                and (static_named or self.leaves_static(MESH_REST_SHARE)))
 
     def holds_mismatch(self, floor_mm: float) -> bool:
-        """Whether what is left (above the noise floor across frames) is no larger than the
-        disagreement itself, in both parts: the two elements bracket the converged body, so
-        the robot's element is no further from it than from the other element. A bound for
-        the nominal model's mismatch (nominal_bracket); a fit is held to MESH_REST_SHARE."""
-        return (systematic_mm(self.rest_relative_mm, floor_mm) <= self.relative_mm
-                and self.rest_static_mm <= self.static_mm)
+        """Whether what is left is no larger than the disagreement itself, in both parts: the
+        two elements bracket the converged body, so the robot's element is no further from it
+        than from the other element. A bound for the nominal model's mismatch
+        (nominal_bracket); a fit is held to MESH_REST_SHARE."""
+        return self.leaves_across(floor_mm) and self.leaves_static()
 
     def as_dict(self) -> dict:
         return {"relative_mm": round(self.relative_mm, 3), "static_mm": round(self.static_mm, 3),

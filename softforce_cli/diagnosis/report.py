@@ -284,14 +284,10 @@ def static_beyond_line(diagnosis: Diagnosis) -> str:
     """The summary's line for a fit named though it leaves more than the noise across
     frames, since without it only what every frame shares was beyond the mesh's own error
     (FitBracket.explains_static_beyond)."""
-    fitted, nominal = diagnosis.fit_bracket, diagnosis.nominal_bracket
-    floor = diagnosis.noise_floor_mm
-    return (f"without it the model is {systematic_mm(nominal.rest_relative_mm, floor):.2f} mm "
-            f"above the noise across frames (noise floor {floor:.2f} mm) and "
-            f"{nominal.rest_static_mm:.2f} mm static from the recording, where this mesh's two "
-            f"quadratic elements disagree by {nominal.relative_mm:.2f} and "
-            f"{nominal.static_mm:.2f} mm: only the shape every frame shares was beyond the "
-            f"mesh's own error; with it {fitted.rest_static_mm:.2f} mm static is left, and "
+    fitted, floor = diagnosis.fit_bracket, diagnosis.noise_floor_mm
+    return (f"without it the model is {_nominal_against_mesh(diagnosis)}: only the shape "
+            f"every frame shares was beyond the mesh's own error; with it "
+            f"{fitted.rest_static_mm:.2f} mm static is left, and "
             f"{systematic_mm(fitted.rest_relative_mm, floor):.2f} mm across frames, the mesh's "
             f"(its elements disagree by {fitted.relative_mm:.2f} mm there with the fitted "
             "values; a finer mesh would tell)")
@@ -300,17 +296,21 @@ def static_beyond_line(diagnosis: Diagnosis) -> str:
 def mismatch_within_mesh_line(diagnosis: Diagnosis) -> str:
     """The summary's line for `none` where a mismatch no effect names is no larger than the
     mesh's own error (pipeline._mismatch_within_mesh)."""
-    bracket = diagnosis.nominal_bracket
-    floor = diagnosis.noise_floor_mm
     partial = (f"; {', '.join(diagnosis.partial)} fits part of it, too little to name"
                if diagnosis.partial else "")
     return (f"the model explains the recording to {diagnosis.evidence['rms_nominal_mm']:.2f} mm "
-            f"RMS (noise floor {floor:.2f} mm), within this mesh's own error: it is "
-            f"{systematic_mm(bracket.rest_relative_mm, floor):.2f} mm above the noise across "
-            f"frames and {bracket.rest_static_mm:.2f} mm static from the recording, where this "
-            f"mesh's two quadratic elements disagree by {bracket.relative_mm:.2f} and "
-            f"{bracket.static_mm:.2f} mm{partial}: the mesh is the likely cause, not physics "
-            "(a finer mesh would tell)")
+            f"RMS, within this mesh's own error: it is {_nominal_against_mesh(diagnosis)}"
+            f"{partial}: the mesh is the likely cause, not physics (a finer mesh would tell)")
+
+
+def _nominal_against_mesh(diagnosis: Diagnosis) -> str:
+    """"X mm above the noise across frames ... disagree by A and B mm" of the nominal model
+    against its two elements' disagreement (diagnosis.nominal_bracket)."""
+    bracket, floor = diagnosis.nominal_bracket, diagnosis.noise_floor_mm
+    return (f"{systematic_mm(bracket.rest_relative_mm, floor):.2f} mm above the noise across "
+            f"frames (noise floor {floor:.2f} mm) and {bracket.rest_static_mm:.2f} mm static "
+            f"from the recording, where this mesh's two quadratic elements disagree by "
+            f"{bracket.relative_mm:.2f} and {bracket.static_mm:.2f} mm")
 
 
 def _values_text(parameters: dict[str, dict[str, Any]]) -> str:
