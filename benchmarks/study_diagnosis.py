@@ -286,6 +286,9 @@ def run_case(case: str, seed: int) -> dict:
         return {"case": case, "seed": seed, "error": error}
     pose = FOLDER / "pose.json"
     pose.write_text(json.dumps(pose_from_truth(truth_path_for(recording))))
+    # frames the truth reached by snapping through (docs/scenarios.md): not a smooth motion
+    snaps = [frame["index"] for frame in json.loads(truth_path_for(recording).read_text())["frames"]
+             if "snap_through_mm" in frame]
     output = FOLDER / f"{name}.out"
     shutil.rmtree(output, ignore_errors=True)
     began = time.perf_counter()
@@ -314,7 +317,7 @@ def run_case(case: str, seed: int) -> dict:
                            else document["noise_floor_mm"]),
         "channel": first.get("evidence", {}).get("channel", "clouds"),
         "regions": document["location"]["regions"], "seconds": round(elapsed, 1),
-        "groups": document["indistinguishable_groups"],
+        "groups": document["indistinguishable_groups"], "truth_snaps": snaps,
     }
 
 
@@ -336,7 +339,10 @@ def table(rows: list[dict]) -> str:
                     else "")
         value = (f"{r['fitted']:.3g}{interval} / {r['true']:.3g}" if named
                  and r["fitted"] is not None and r["true"] is not None else "-")
-        lines.append(f"| {r['case']} | {r['seed']} | {r['verdict']} ({r['expected']}, {mark}) "
+        snapped = (f", the truth snaps through at frame {', '.join(map(str, r['truth_snaps']))}"
+                   if r.get("truth_snaps") else "")
+        lines.append(f"| {r['case']} | {r['seed']} | {r['verdict']} ({r['expected']}, {mark}"
+                     f"{snapped}) "
                      f"| {value} | {r['heldout_before_mm']} -> {r['heldout_after_mm']} | "
                      f"{r['noise_floor_mm']:.2f} | {', '.join(r['regions']) or '-'} |")
     return "\n".join(lines)

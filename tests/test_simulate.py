@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import json
 import re
+import warnings
 from collections import defaultdict
 from pathlib import Path
 
+import meshio
 import numpy as np
 import pytest
 
@@ -19,9 +21,11 @@ from softforce_cli.io.mcap_reader import (
     recording_messages,
 )
 from softforce_cli.model.robot import load_robot, with_element
+from softforce_cli.model.structured import box_mesh
+from softforce_cli.sim import ground_truth
 from softforce_cli.sim.ground_truth import hook_region
 from softforce_cli.sim.scenario import HOOK_RADIUS_MM, load_scenario
-from softforce_cli.sim.simulate import simulate
+from softforce_cli.sim.simulate import SnapThroughWarning, simulate
 from tests.cli_runner import assert_one_line_error, softforce
 from tests.conftest import ROOT
 
@@ -258,3 +262,111 @@ def test_scenario_defaults_follow_the_design(tmp_path):
     assert scenario.robot == Path(tmp_path / "r.toml").resolve()
     # lit from the camera with 0.7 of the paint as ambient light (docs/virtual_camera.md)
     assert scenario.scene.ambient == 0.7 and scenario.scene.light_direction is None
+
+
+# A shallow arch clamped at both ends, 80 mm span, 2 mm thick, 6 mm rise (P2, Neo-Hookean).
+# Pressed at its crown in steps of 0.01 N it snaps through to the inverted arch between 0.07
+# and 0.08 N and back between 0.03 and 0.02 N: between those loads it has two equilibria.
+ARCH_TOML = """name = "arch"
+[mesh]
+path = "arch.vtu"
+element = "p2"
+[material]
+law = "neo-hookean"
+young_modulus_mpa = 5.0
+poisson_ratio = 0.45
+total_mass_kg = 0.001
+gravity_mm_s2 = [0.0, 0.0, -9810.0]
+[[fixed]]
+box_mm = [-1.0, -10.0, -10.0, 1.0, 10.0, 10.0]
+[[fixed]]
+box_mm = [79.0, -10.0, -10.0, 81.0, 10.0, 10.0]
+[[marker]]
+id = "crown"
+position_mm = [40.0, 0.0, 8.0]
+"""
+
+
+def arch_scenario(folder: Path, crown_loads_n: list[float]) -> Path:
+    """A scenario pressing the arch's crown with each load in turn (one frame each)."""
+    nodes, tets = box_mesh((80.0, 8.0, 2.0), (16, 2, 1), (0.0, -4.0, 0.0))
+    nodes[:, 2] += 6.0 * np.sin(np.pi * nodes[:, 0] / 80.0)
+    meshio.write(folder / "arch.vtu", meshio.Mesh(nodes, [("tetra", tets)]))
+    (folder / "arch.toml").write_text(ARCH_TOML)
+    frames = "".join(
+        "\n[[frame]]\nactuation = []\n" + (f'[[frame.load]]\nkind = "probe"\npoint_mm = '
+                                          f"[40.0, 0.0, 8.0]\nforce_n = {load}\n" if load else "")
+        for load in crown_loads_n)
+    path = folder / "arch_scenario.toml"
+    path.write_text('robot = "arch.toml"\n[camera]\nwidth = 32\nheight = 24\nnoise = false\n'
+                    + frames)
+    return path
+
+
+def crown_heights(truth: Path) -> list[float]:
+    return [frame["markers"]["crown"]["robot_mm"][2]
+            for frame in json.loads(truth.read_text())["frames"]]
+
+
+def snaps(truth: Path) -> dict[int, float]:
+    return {frame["index"]: frame["snap_through_mm"]
+            for frame in json.loads(truth.read_text())["frames"] if "snap_through_mm" in frame}
+
+
+def test_a_snap_through_of_the_truth_is_reported(tmp_path):
+    """Past 0.07 N the arch snaps through, and the way back to 0.05 N stays inverted: the
+    frame is marked with how far the two equilibria at 0.05 N lie apart (about the arch's
+    whole rise) and a warning says so; so is the snap back at rest."""
+    scenario = arch_scenario(tmp_path, [0.05, 0.1, 0.05, 0.0])
+    with pytest.warns(SnapThroughWarning) as caught:
+        result = simulate(scenario, tmp_path / "arch.mcap")
+    assert [str(w.message).split(" ")[:2] for w in caught] == [["frame", "1"], ["frame", "3"]]
+    heights = crown_heights(result.truth)
+    assert heights[0] > 6.0 and heights[1] < -1.0  # standing, then inverted
+    assert heights[2] < 0.0  # inverted at the load it stood under in frame 0
+    assert heights[3] > 7.0  # back up at rest
+    found = snaps(result.truth)
+    assert sorted(found) == [1, 3]
+    # the two equilibria at 0.05 N: the crown at heights[0] and heights[2]
+    assert found[1] >= heights[0] - heights[2] - 0.01
+
+
+def test_a_truth_moving_along_one_branch_reports_no_snap(tmp_path):
+    """Loads the arch holds without snapping, loading and unloading: no warning, no mark."""
+    scenario = arch_scenario(tmp_path, [0.0, 0.03, 0.06, 0.03, 0.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SnapThroughWarning)
+        result = simulate(scenario, tmp_path / "arch.mcap")
+    assert snaps(result.truth) == {}
+    assert min(crown_heights(result.truth)) > 5.0
+
+
+def test_states_past_a_snap_through_are_not_taken_from_the_cache(tmp_path):
+    """simulate's states cache holds a state per frame's loads, which a body with two
+    equilibria there does not determine: past a snap-through a run neither reads nor fills
+    it, so frame 2 is the inverted arch, not frame 0's standing one, on a run that finds
+    frame 0 cached too."""
+    scenario = arch_scenario(tmp_path, [0.05, 0.1, 0.05])
+    states: dict = {}
+    for run in range(2):
+        with pytest.warns(SnapThroughWarning):
+            result = simulate(scenario, tmp_path / f"arch{run}.mcap", states=states)
+        heights = crown_heights(result.truth)
+        assert heights[0] > 6.0 and heights[2] < 0.0
+        assert sorted(snaps(result.truth)) == [1]
+    assert len(states) == 1  # frame 0's state only
+
+
+def test_continuation_walks_from_the_previous_frames_loads(tmp_path, monkeypatch):
+    """Where one Newton solve does not reach a frame, simulate walks to it in load steps, as
+    the body moves between the frames: from the inverted arch under 0.1 N to 0.05 N, the load
+    eases off and the arch stays inverted. (A walk whose loads grow from zero, as before
+    2026-12-02, first asks the inverted arch to stand under 0.017 N, below the 0.02-0.03 N
+    where its branch ends, and Newton found no equilibrium there.)"""
+    monkeypatch.setattr(ground_truth, "CONTINUATION_STEPS", (3,))
+    scenario = arch_scenario(tmp_path, [0.1, 0.05])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SnapThroughWarning)
+        result = simulate(scenario, tmp_path / "arch.mcap")
+    heights = crown_heights(result.truth)
+    assert heights[0] < -1.0 and -1.0 < heights[1] < 0.0

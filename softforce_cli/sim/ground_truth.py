@@ -18,7 +18,7 @@ import numpy as np
 from softforce_cli.errors import ScenarioError, SolverError
 from softforce_cli.fem.attachment import Attachment
 from softforce_cli.fem.model import FEModel
-from softforce_cli.fem.statics import Equilibrium, PointLoads, solve_equilibrium
+from softforce_cli.fem.statics import Equilibrium, PointLoads, SolverSettings, solve_equilibrium
 from softforce_cli.model.config import load_config
 from softforce_cli.model.effects import effects_of_kind
 from softforce_cli.model.mesh_io import read_tet_mesh
@@ -29,6 +29,15 @@ from softforce_cli.sim.scenario import FrameSpec, LoadSpec, Scenario
 CONTINUATION_STEPS = (1, 4, 16)
 # Lattice points per hook radius that sample a weight's hook (about 120 in a whole ball).
 HOOK_SAMPLES_PER_RADIUS = 3
+# Two equilibria under one frame's loads are two states of the body when a node lies this far
+# apart in them: far above the solver's tolerance (1e-7 mm), below any camera's noise.
+BRANCH_SEPARATION_MM = 0.1
+# Load steps of the way back that confirms a snap-through: one Newton solve over a whole
+# frame's step can land on another equilibrium than the branch the body moved along.
+PATH_STEPS = 8
+# The way back needs its state to a hundredth of BRANCH_SEPARATION_MM only: Newton stops a
+# step or two earlier than at the truth's own tolerance.
+WAY_BACK = SolverSettings(step_tolerance_mm=1e-3)
 
 
 @dataclass(frozen=True)
@@ -115,41 +124,29 @@ def hook_region(robot: Robot, point_mm: np.ndarray, radius_mm: float) -> Attachm
 
 
 def solve_frame(robot: Robot, frame: FrameSpec, start: Equilibrium | None,
-                model: FEModel | None = None) -> TruthState:
+                model: FEModel | None = None,
+                loads_before: tuple[LoadSpec, ...] = ()) -> TruthState:
     """Equilibrium of the truth robot (or of `model`, its FE model of this frame's context)
     under a frame's actuation and loads.
 
-    Starts from `start` (the previous frame) and, if Newton fails there, walks to the target
-    in equal load steps (continuation).
+    Starts from `start` (the previous frame's state, under its loads `loads_before`) and, if
+    Newton fails there, walks to the target in equal steps (continuation) of the cable
+    inputs and of the loads, from the previous frame's to this one's, as the body moves
+    between the two frames.
     """
     if len(frame.actuation) != len(robot.cable_specs):
         raise ScenarioError(
             f"a frame gives {len(frame.actuation)} actuation values for the "
             f"{len(robot.cable_specs)} cables of {robot.config.source}"
         )
-    target = np.array(frame.actuation, dtype=float)
     acting, attachment, forces, normals = load_points(robot, frame.loads)
+    walk_from, walk_to = _load_path(robot, loads_before, acting, forces)
     model = robot.fe_model if model is None else model
-    controlled = robot.cable_inputs(target).displacement_controlled
-    previous_actuation = (
-        np.zeros_like(target)
-        if start is None
-        else np.where(controlled, start.cable_shortenings_mm, start.cable_tensions_n)
-    )
-    previous_forces = np.zeros_like(forces)
     last_error: SolverError | None = None
     for steps in CONTINUATION_STEPS:
-        state = start
         try:
-            for step in range(1, steps + 1):
-                share = step / steps
-                inputs = robot.cable_inputs(
-                    previous_actuation + share * (target - previous_actuation)
-                )
-                loads = PointLoads(acting, previous_forces + share * (forces - previous_forces))
-                state = solve_equilibrium(
-                    model, inputs, loads, None if state is None else state.positions_mm
-                )
+            state = _walk(robot, model, start, np.array(frame.actuation, dtype=float),
+                          walk_from, walk_to, steps)
             break
         except SolverError as error:
             last_error = error
@@ -165,3 +162,75 @@ def solve_frame(robot: Robot, frame: FrameSpec, start: Equilibrium | None,
         for i, load in enumerate(frame.loads)
     )
     return TruthState(state, contacts)
+
+
+def _load_path(robot: Robot, loads_from: tuple[LoadSpec, ...], acting: Attachment,
+               forces: np.ndarray) -> tuple[PointLoads, np.ndarray]:
+    """The two ends of a walk from a frame's loads, loads_from, to forces (p, 3) N acting
+    through `acting`: loads_from's forces as PointLoads on the points of both, and the
+    forces at the end on the same points."""
+    acting_from, _, forces_from, _ = load_points(robot, loads_from)
+    points = Attachment.concatenate([acting, acting_from])
+    return (PointLoads(points, np.concatenate([np.zeros_like(forces), forces_from])),
+            np.concatenate([forces, np.zeros_like(forces_from)]))
+
+
+def _walk(robot: Robot, model: FEModel, start: Equilibrium | None, target: np.ndarray,
+          loads_before: PointLoads, forces: np.ndarray, steps: int,
+          settings: SolverSettings = SolverSettings()) -> Equilibrium:
+    """The equilibrium at cable inputs `target` (a,) and forces (p, 3) N on loads_before's
+    points, reached in `steps` equal steps from `start` (rest when None) under loads_before:
+    the inputs from the cables' state at the start, the forces from loads_before's.
+
+    Raises SolverError when a step's Newton solve fails.
+    """
+    controlled = robot.cable_inputs(target).displacement_controlled
+    actuation_before = (
+        np.zeros_like(target)
+        if start is None
+        else np.where(controlled, start.cable_shortenings_mm, start.cable_tensions_n)
+    )
+    state = start
+    for step in range(1, steps + 1):
+        share = step / steps
+        inputs = robot.cable_inputs(actuation_before + share * (target - actuation_before))
+        loads = PointLoads(loads_before.points,
+                           loads_before.forces_n + share * (forces - loads_before.forces_n))
+        state = solve_equilibrium(model, inputs, loads,
+                                  None if state is None else state.positions_mm, settings)
+    assert state is not None  # steps >= 1
+    return state
+
+
+def return_separation(robot: Robot, previous_frame: FrameSpec, previous_model: FEModel | None,
+                      previous: TruthState, frame: FrameSpec, current: TruthState) -> float:
+    """mm: the largest node distance between `previous`, the state the body left, and the
+    equilibrium the previous frame's loads (and model) reach from `current`, the state it
+    reached under `frame`'s, along the way back; 0 when it returns, or when no solve from
+    `current` reaches one.
+
+    Moving on along one branch of equilibria, the body comes back to where it was (0 to the
+    solver's tolerance). Above BRANCH_SEPARATION_MM it did not: at the previous loads the body
+    has two equilibria, so between the frames it passed a fold of the branch it stood on and
+    snapped through to another (a cable-pulled Diamond tipping over as it softens). The way
+    back is one Newton solve first, then, when that lands elsewhere, PATH_STEPS steps from
+    this frame's inputs and forces to the previous frame's, which follow the branch where
+    one solve may jump off it. A fold whose hysteresis is narrower than the step between the
+    frames is not seen: the way back snaps back too.
+    """
+    acting, _, forces, _ = load_points(robot, previous_frame.loads)
+    walk_from, walk_to = _load_path(robot, frame.loads, acting, forces)
+    model = robot.fe_model if previous_model is None else previous_model
+    target = np.array(previous_frame.actuation, dtype=float)
+    separation = 0.0
+    for steps in (1, PATH_STEPS):
+        try:
+            back = _walk(robot, model, current.equilibrium, target, walk_from, walk_to, steps,
+                         WAY_BACK)
+        except SolverError:
+            return 0.0
+        gaps = back.positions_mm - previous.equilibrium.positions_mm
+        separation = float(np.linalg.norm(gaps, axis=1).max())
+        if separation <= BRANCH_SEPARATION_MM:
+            return 0.0
+    return separation

@@ -10,13 +10,15 @@ effects in the truth robot, actuation effects between the commanded and the rece
 displacement, sensor effects in the virtual camera (depth scaled, camera moved); the
 recording carries the commanded actuation only, the truth file the effects and their values.
 A state is solved again within a held frame when its effective actuation or (creep) its
-modulus changes.
+modulus changes. Each new state is checked for a snap-through from the one before, which the
+truth file marks and a SnapThroughWarning reports (docs/scenarios.md, "Snap-throughs").
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import warnings
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +29,7 @@ from softforce_cli import __version__
 from softforce_cli.camera.frame import Actuation, Markers, RgbdFrame
 from softforce_cli.camera.intrinsics import CameraIntrinsics
 from softforce_cli.errors import ScenarioError, SoftforceError
+from softforce_cli.fem.model import FEModel
 from softforce_cli.io.atomic import atomic_write_text, check_writable
 from softforce_cli.io.mcap_writer import write_recording
 from softforce_cli.model.effect_physics import fe_model_with_effects
@@ -46,10 +49,20 @@ from softforce_cli.model.regions import region_names
 from softforce_cli.model.robot import Robot
 from softforce_cli.sim.camera_pose import invert_pose, look_at, transform_points
 from softforce_cli.sim.depth_noise import D415Noise, apply_d415
-from softforce_cli.sim.ground_truth import TruthState, solve_frame, truth_robot
+from softforce_cli.sim.ground_truth import (
+    TruthState,
+    return_separation,
+    solve_frame,
+    truth_robot,
+)
 from softforce_cli.sim.props import probe_surface, weight_surface
 from softforce_cli.sim.render import RenderedView, SceneSurface, Spots, render, table_surface
 from softforce_cli.sim.scenario import FrameSpec, Scenario, load_scenario
+
+
+class SnapThroughWarning(UserWarning):
+    """The truth robot passed a fold between two frames and jumped to another equilibrium."""
+
 
 # The table is a square this big around the robot, large enough to fill the D415's view.
 TABLE_HALF_SIZE_MM = 600.0
@@ -262,26 +275,38 @@ def _frames(
     control = robot.cable_specs[0].control if names else "displacement"
     plan = frame_plan(scenario, names)
     creep = any(e.name == "viscoelastic_creep" for e in scenario.effects)
+
+    def model_of(context: FrameContext) -> FEModel | None:
+        return fe_model_with_effects(robot, robot.effects, context) if creep else None
+
     state: TruthState | None = None
     solved_key = None
+    solved_with: tuple[FrameSpec, FrameContext] | None = None
+    snapped = False  # past a snap-through the body's states depend on its path: no cache
     for index, spec_index in enumerate(plan.spec_index):
         frame = scenario.frames[spec_index]
         context = plan.contexts[index]
         modulus = creep_factor(scenario.effects, context.hold_s) if creep else 1.0
         key = (int(spec_index), tuple(plan.effective[index]), modulus)
+        snap_mm = None
         if key != solved_key:  # a new [[frame]], or the effects changed the state in a hold
             # repeat=1: how long a state is held does not change it, so holds share it
             effective = dataclasses.replace(frame, actuation=tuple(plan.effective[index]),
                                             repeat=1)
-            if states is not None and (effective, modulus) in states:
+            if states is not None and not snapped and (effective, modulus) in states:
                 state = states[effective, modulus]
             else:
-                model = fe_model_with_effects(robot, robot.effects, context) if creep else None
-                state = solve_frame(
-                    robot, effective, None if state is None else state.equilibrium, model
-                )
-                if states is not None:
+                left = state
+                state = solve_frame(robot, effective, None if left is None else left.equilibrium,
+                                    model_of(context),
+                                    () if solved_with is None else solved_with[0].loads)
+                if left is not None and solved_with is not None:
+                    snap_mm = _snap_through(robot, solved_with, model_of, left, effective,
+                                            state, index, scenario.frame_interval_s)
+                    snapped = snapped or snap_mm is not None
+                if states is not None and not snapped:
                     states[effective, modulus] = state
+            solved_with = (effective, context)
             view = _biased(render(_scene(scenario, robot, state), intrinsics,
                                   actual_world_from_cam, ambient=scenario.scene.ambient,
                                   light_direction=scenario.scene.light_direction,
@@ -305,6 +330,8 @@ def _frames(
                 "hold_s": round(context.hold_s, 9),
                 "modulus_factor": round(modulus, 9),
             }
+        if snap_mm is not None:
+            record["snap_through_mm"] = round(snap_mm, 3)
         # the truth goes in before the frame is handed out: a Ctrl-C after the writer has
         # taken the frame must find its truth (run_simulation keeps as many as were written)
         truth_frames.append(record)
@@ -318,6 +345,26 @@ def _frames(
         )
         if progress is not None:
             progress(index + 1, scenario.frame_count)
+
+
+def _snap_through(robot: Robot, solved_with: tuple[FrameSpec, FrameContext],
+                  model_of: Callable[[FrameContext], FEModel | None], left: TruthState,
+                  frame: FrameSpec, reached: TruthState, index: int,
+                  interval_s: float) -> float | None:
+    """mm: how far from the state the truth left (solved with `solved_with`) the way back
+    from the state it reached at frame `index` (under `frame`) ends, when the body snapped
+    through between them (ground_truth.return_separation), with a SnapThroughWarning; None
+    when it did not."""
+    before, context = solved_with
+    separation = return_separation(robot, before, model_of(context), left, frame, reached)
+    if separation == 0.0:
+        return None
+    warnings.warn(SnapThroughWarning(
+        f"frame {index} ({index * interval_s:g} s): the truth robot snapped through to "
+        f"another equilibrium (under the loads of the frame before, it has two, "
+        f"{separation:.1f} mm apart): the recording shows a jump, not a smooth motion, and "
+        "the frames after it depend on the path"), stacklevel=2)
+    return separation
 
 
 def _biased(view: RenderedView, scale: float) -> RenderedView:
