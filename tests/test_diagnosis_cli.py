@@ -125,6 +125,8 @@ def test_diagnosis_json_follows_the_contract(slack_run):
     evidence = document["evidence"]
     assert evidence["element"] == "p1" and evidence["prediction_element"] == "p2"
     assert evidence["rms_given_element_mm"] > 2 * evidence["rms_nominal_mm"]
+    # the body moves smoothly in its holds (diagnosis.jumps)
+    assert evidence["jumps_in_holds"] == []
 
 
 def test_the_fitted_robot_loads_and_carries_the_slack_and_the_law(slack_run, tmp_path):

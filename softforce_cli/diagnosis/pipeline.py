@@ -25,6 +25,7 @@ from softforce_cli.diagnosis.fitting import (
     shift_jacobian,
 )
 from softforce_cli.diagnosis.hypotheses import ABSOLUTE, Hypothesis, Inputs, hypotheses
+from softforce_cli.diagnosis.jumps import jumps_in_holds
 from softforce_cli.diagnosis.markers import marker_field, marker_inputs, marker_rms_mm
 from softforce_cli.diagnosis.observations import DiagnosisError, Observations
 from softforce_cli.diagnosis.refit import ExactModel, Prediction, Refit, refit
@@ -1143,6 +1144,10 @@ def _verdict(result: Diagnosis, judge: _Judge, solutions: StateSolutions,
         # when a camera effect was selected first: each camera effect's held-out RMS (mm)
         # fitted with the mesh's allowance (empty: not needed)
         "camera_with_mesh_mm": {k: round(v, 3) for k, v in result.camera_with_mesh_mm.items()},
+        # frames whose points jumped from the frame before's with the inputs held: a body
+        # snapping through, or the robot or camera moved (diagnosis.jumps)
+        "jumps_in_holds": [jump.as_dict()
+                           for jump in jumps_in_holds(result.observations.frames)],
         # the markers' residual (diagnosis.markers): None when the recordings have none
         "markers": None if result.markers is None else {
             "observations": len(result.markers.frame) // 3,

@@ -254,6 +254,8 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
     for group in diagnosis.groups:
         lines.append(f"this data cannot tell apart: {', '.join(group)} ({group_reason(group)})")
     lines += [unreached_line(final) for final in diagnosis.finals if final.refit.unreached]
+    if evidence["jumps_in_holds"]:
+        lines.append(jumps_line(evidence["jumps_in_holds"], len(diagnosis.observations.recordings)))
     if (evidence.get("prediction_element") != evidence.get("element")
             and evidence["rms_given_element_mm"] > 1.5 * evidence["rms_nominal_mm"]):
         lines.append(f"the robot's {evidence['element']} mesh alone leaves "
@@ -347,6 +349,20 @@ def fitted_robot_toml(robot_file: Path, diagnosis: Diagnosis, output_dir: Path) 
     text = re.sub(r"(?ms)^\[\[effect\]\]\n.*?(?=^\[|\Z)", "", text)
     header = f"\n# fitted by softforce diagnose {__version__} (diagnosis.json)\n"
     return text.rstrip("\n") + "\n" + header + "\n".join(tables)
+
+
+def jumps_line(jumps: list[dict], recordings: int) -> str:
+    """The summary's line for frames whose points jumped with the inputs held
+    (evidence.jumps_in_holds, diagnosis.jumps)."""
+    where = "; ".join(
+        f"frame {jump['frame']}" + (f" of recording {jump['recording'] + 1}" if recordings > 1
+                                    else "")
+        + f" ({jump['moved_mm']:.1f} mm, {jump['typical_mm']:.1f} mm in the other holds)"
+        for jump in jumps)
+    return (f"the robot jumps with its inputs held: {where}. It snapped through (passed a "
+            "fold), or the robot or the camera moved; the model is solved near its nominal "
+            "equilibria and follows no such jump, so what is fitted after it is not to be "
+            "trusted")
 
 
 def unreached_line(final: Final) -> str:
