@@ -12,7 +12,7 @@ import meshio
 import numpy as np
 import pytest
 
-from softforce_cli.errors import ScenarioError
+from softforce_cli.errors import ScenarioError, SolverError
 from softforce_cli.io.mcap_reader import (
     frames_from_messages,
     iter_frames,
@@ -370,3 +370,21 @@ def test_continuation_walks_from_the_previous_frames_loads(tmp_path, monkeypatch
         result = simulate(scenario, tmp_path / "arch.mcap")
     heights = crown_heights(result.truth)
     assert heights[0] < -1.0 and -1.0 < heights[1] < 0.0
+
+
+def test_a_frame_the_truth_cannot_reach_is_named(tmp_path, monkeypatch):
+    """Where no continuation reaches a frame's state, the error says which frame, and the
+    frames before it are kept."""
+    solve = ground_truth.solve_equilibrium
+
+    def failing_past(model, inputs, loads=None, *args, **kwargs):
+        if loads is not None and np.abs(loads.forces_n).sum() > 0.07:
+            raise SolverError("static solve did not converge")
+        return solve(model, inputs, loads, *args, **kwargs)
+
+    monkeypatch.setattr(ground_truth, "solve_equilibrium", failing_past)
+    scenario = arch_scenario(tmp_path, [0.05, 0.1])
+    with pytest.raises(ScenarioError, match=r"^frame 1 \(0.5 s\): the truth robot cannot "
+                                            r"reach the frame's state even in 16 load steps"):
+        simulate(scenario, tmp_path / "arch.mcap")
+    assert len(crown_heights(tmp_path / "arch.truth.json")) == 1

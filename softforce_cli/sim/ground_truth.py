@@ -152,7 +152,7 @@ def solve_frame(robot: Robot, frame: FrameSpec, start: Equilibrium | None,
             last_error = error
     else:
         raise ScenarioError(
-            f"the truth robot cannot reach a frame's state even in "
+            f"the truth robot cannot reach the frame's state even in "
             f"{CONTINUATION_STEPS[-1]} load steps: {last_error}"
         )
     deformed = attachment.positions(state.positions_mm)

@@ -297,9 +297,14 @@ def _frames(
                 state = states[effective, modulus]
             else:
                 left = state
-                state = solve_frame(robot, effective, None if left is None else left.equilibrium,
-                                    model_of(context),
-                                    () if solved_with is None else solved_with[0].loads)
+                try:
+                    state = solve_frame(robot, effective,
+                                        None if left is None else left.equilibrium,
+                                        model_of(context),
+                                        () if solved_with is None else solved_with[0].loads)
+                except ScenarioError as error:
+                    raise ScenarioError(f"frame {index} ({index * scenario.frame_interval_s:g}"
+                                        f" s): {error}") from error
                 if left is not None and solved_with is not None:
                     snap_mm = _snap_through(robot, solved_with, model_of, left, effective,
                                             state, index, scenario.frame_interval_s)
