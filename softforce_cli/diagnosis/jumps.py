@@ -10,8 +10,8 @@ to be trusted: the diagnosis reports where the recording jumps.
 How far two frames' points lie apart is the median distance from each point of either
 frame to the nearest point of the other. Between two noisy samplings of one surface this is
 about the sampling's spacing (about 5 mm for the coarse Diamond's 6,000 points a frame);
-the study's creep drift in a hold moves it to at most 2.3 times the recording's typical
-value, its tip-over to 9.8 times.
+the study's creep drift in a hold moves it to at most 2.5 times the recording's typical
+value, its tip-over to 5.1-9.8 times (docs/diagnosis.md, step 14).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 from softforce_cli.diagnosis.observations import FrameObservation
 
 # A hold's motion this many times the recording's typical one is a jump: above the study's
-# creep drift (2.3 times at most), below its tip-over (9.8 times).
+# creep drift (2.5 times at most), below its tip-over (5.1-9.8 times).
 JUMP_FACTOR = 4.0
 # Holds needed for the typical motion to mean something (its median).
 MIN_HOLDS = 3
