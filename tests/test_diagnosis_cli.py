@@ -84,6 +84,10 @@ def test_the_concealed_slack_is_named_located_fitted_and_halves_the_residual(sla
     judged = [e for e in document["effects"] if e["evidence"]["channel"] == "markers"]
     assert {e["name"] for e in judged} == {"extrinsic_offset", "depth_bias"}
     assert not any(e["evidence"]["selected"] for e in judged)
+    # the terminal summary, printed to a pipe (80 columns), wraps names and values whole
+    assert "…" not in result.stdout
+    assert "cable_slack" in result.stdout and "slack_mm=" in result.stdout
+    assert "cable_slack[north] + material_nonlinearity: " in result.stdout  # not rich markup
 
 
 def test_diagnosis_json_follows_the_contract(slack_run):

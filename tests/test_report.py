@@ -271,6 +271,31 @@ def test_an_effect_judged_on_the_markers_says_so(tmp_path):
                                               "location.png"}
 
 
+def test_a_pair_is_labelled_with_both_effects_and_its_targets_are_not_markup(tmp_path):
+    """diagnose writes a pair's label with its targets in brackets; the report names both
+    effects, and the terminal shows the brackets of its parameters as written."""
+    folder = diagnose_folder(tmp_path / "diagnose")
+    pair = {"name": "material_nonlinearity", "label": "cable_slack[north] + material_nonlinearity",
+            "parameters": {
+                "cable_slack[north].slack_mm": {"value": 3.02, "ci95": [2.96, 3.08], "unit": "mm"},
+                "material_nonlinearity.blend": {"value": 0.89, "ci95": [0.56, 1.0], "unit": ""}},
+            "heldout_rms_before_mm": 1.14, "heldout_rms_after_mm": 0.31,
+            "evidence": {"mode": "absolute"}}
+    (folder / "diagnosis.json").write_text(json.dumps({
+        **DIAGNOSIS, "effects": [DIAGNOSIS["effects"][0], pair]}))
+    effects = load_run(folder).diagnose.diagnosis.effects
+    assert [e.label for e in effects] == [
+        "cable_slack (north)", "cable_slack (north) + material_nonlinearity"]
+    summary = terminal.diagnosis_summary(load_run(folder).diagnose.diagnosis)
+    wide, narrow = Console(width=200, record=True), Console(width=80, record=True)
+    wide.print(summary)
+    narrow.print(summary)
+    text = wide.export_text()
+    assert "cable_slack (north) + material_nonlinearity" in text
+    assert "cable_slack[north].slack_mm 3.02 mm [2.96, 3.08]" in text
+    assert "…" not in narrow.export_text()  # a narrow terminal folds long cells
+
+
 def test_bad_diagnosis_field_is_one_line(tmp_path):
     folder = diagnose_folder(tmp_path / "diagnose")
     broken = {k: v for k, v in DIAGNOSIS.items() if k != "noise_floor_mm"}

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -66,11 +67,16 @@ def _summary(diagnosis) -> None:
     from softforce_cli.diagnosis.report import effect_entry, summary_lines
 
     floor = diagnosis.noise_floor_mm
-    table = Table(title=f"verdict: [bold]{diagnosis.verdict}[/]   noise floor {floor:.2f} mm",
-                  title_justify="left")
-    for name in ("effect", "parameters", "held-out before (mm)", "after (mm)", "mode",
-                 "accepted"):
-        table.add_column(name)
+    table = Table(title=f"verdict: [bold]{diagnosis.verdict}[/]   noise floor {floor:.2f} mm;"
+                        " held-out residual RMS (mm)", title_justify="left")
+    # names and values wrap (a parameter a line) rather than end in an ellipsis on a narrow
+    # terminal or in a log
+    for name in ("effect", "parameters"):
+        table.add_column(name, overflow="fold")
+    for name in ("before", "after"):
+        table.add_column(name, justify="right", no_wrap=True)
+    for name in ("mode", "accepted"):
+        table.add_column(name, no_wrap=True)
     rows = list(diagnosis.selected) + [f for f in diagnosis.finals
                                        if f not in diagnosis.selected]
     rows += [s for s in diagnosis.screened[:6] if s.key not in {f.screened.key for f in rows}]
@@ -78,12 +84,14 @@ def _summary(diagnosis) -> None:
         entry = effect_entry(item, diagnosis.floor_for(item), item in diagnosis.selected,
                              diagnosis.with_mesh.get(item))
         shown = [f"{k}={v['value']:.3g}" for k, v in entry["parameters"].items()]
-        values = ", ".join(shown[:2]) + (f" (+{len(shown) - 2})" if len(shown) > 2 else "")
+        values = "\n".join(shown[:2]) + (f"\n(+{len(shown) - 2})" if len(shown) > 2 else "")
         accepted = entry["evidence"]["accepted"]
         mode = "relative" if "relative" in entry["evidence"]["mode"] else "absolute"
         if entry["evidence"]["channel"] == "markers":
             mode += ", markers"
-        table.add_row(entry["label"], values, f"{entry['heldout_rms_before_mm']:.3f}",
+        # labels name their targets in brackets (cable_slack[north]): not rich markup
+        table.add_row(escape(entry["label"]), escape(values),
+                      f"{entry['heldout_rms_before_mm']:.3f}",
                       f"{entry['heldout_rms_after_mm']:.3f}", mode,
                       "screened" if accepted is None else ("yes" if accepted else "no"))
     stdout.print(table)
@@ -91,4 +99,4 @@ def _summary(diagnosis) -> None:
     stdout.print(f"location: regions {', '.join(where['regions']) or '-'}; "
                  f"cables {', '.join(where['cables']) or '-'}")
     for line in summary_lines(diagnosis):
-        stdout.print(line)
+        stdout.print(line, markup=False)

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.markup import escape
 
 from softforce_cli.cli.common import ForceOption, progress_bar, stderr, stdout
 from softforce_cli.cli.interrupt import deferred_interrupt, signal_name
@@ -80,7 +81,7 @@ def _print_summary(run, result) -> None:
     from softforce_cli.cli import report_terminal as terminal
 
     for note in result.notes:
-        stderr.print(f"[yellow]note:[/] {note}", soft_wrap=True)
+        stderr.print(f"[yellow]note:[/] {escape(note)}", soft_wrap=True)
     if result.overview is not None:
         stdout.print(terminal.sense_summary(result.overview, result.truth))
     if run.diagnose is not None:

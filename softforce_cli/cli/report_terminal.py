@@ -78,10 +78,11 @@ def diagnosis_summary(diagnosis: Diagnosis) -> RenderableType:
     table = RichTable(title="effects, ranked (held-out residual RMS, mm)", title_justify="left")
     for name in ("effect", "before", "after", "removed", "parameters (95 % CI)"):
         table.add_column(name, justify="left" if name in ("effect", "parameters (95 % CI)")
-                         else "right")
+                         else "right", overflow="fold")
     for e in diagnosis.effects:
-        table.add_row(e.label, f"{e.heldout_rms_before_mm:.3f}", f"{e.heldout_rms_after_mm:.3f}",
-                      f"{100 * e.improvement:.0f} %",
-                      "; ".join(f"{p.name} {p.value:.4g} {p.unit} [{p.ci95[0]:.4g}, "
-                                f"{p.ci95[1]:.4g}]" for p in e.parameters))
+        # plain Text: a pair's parameters name their targets in brackets, not rich markup
+        table.add_row(Text(e.label), f"{e.heldout_rms_before_mm:.3f}",
+                      f"{e.heldout_rms_after_mm:.3f}", f"{100 * e.improvement:.0f} %",
+                      Text("; ".join(f"{p.name} {p.value:.4g} {p.unit} [{p.ci95[0]:.4g}, "
+                                     f"{p.ci95[1]:.4g}]" for p in e.parameters)))
     return Group(head, table) if diagnosis.effects else head

@@ -6,7 +6,8 @@
      "location": {"regions": [...], "cables": [...], "nodes": [...]}}
 
 Fields beyond these are kept in Diagnosis.extra and shown as they are; an effect's optional
-"target" (the cable or region it was fitted on) is kept. A number written as null (diagnose
+"target" (the cable or region it was fitted on) is kept, and so are the effects its "label"
+names before it when it is a pair. A number written as null (diagnose
 writes null for a value that is not finite) reads as NaN.
 """
 
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,6 +43,9 @@ class Effect:
     heldout_rms_after_mm: float
     evidence: Any
     target: str | None = None
+    # in a pair (diagnose's "label": "cable_slack[north] + material_nonlinearity"), the
+    # effect fitted before this one, as its label; empty for a single effect
+    with_effects: tuple[str, ...] = ()
 
     @property
     def channel(self) -> str:
@@ -51,9 +56,11 @@ class Effect:
 
     @property
     def label(self) -> str:
-        """"cable_slack (north)", or the name alone without a target; "[markers]" after an
-        effect judged on the markers."""
-        label = self.name if not self.target else f"{self.name} ({self.target})"
+        """"cable_slack (north)", or the name alone without a target; a pair's effects joined
+        ("cable_slack (north) + material_nonlinearity"); "[markers]" after an effect judged
+        on the markers."""
+        label = " + ".join((*self.with_effects,
+                            self.name if not self.target else f"{self.name} ({self.target})"))
         return label if self.channel == "clouds" else f"{label} [{self.channel}]"
 
     @property
@@ -132,7 +139,17 @@ def _effect(item: Any, where: str) -> Effect:
         heldout_rms_after_mm=_number(item, "heldout_rms_after_mm", where),
         evidence=item.get("evidence"),
         target=None if item.get("target") is None else str(item["target"]),
+        with_effects=_effects_before(item.get("label")),
     )
+
+
+def _effects_before(label: Any) -> tuple[str, ...]:
+    """The effects a pair's label names before its last ("cable_slack[north] + gravity":
+    ("cable_slack (north)",)), written as Effect.label writes them; () for one effect."""
+    if not isinstance(label, str) or " + " not in label:
+        return ()
+    return tuple(re.sub(r"\[(.+)\]$", r" (\1)", part.strip())
+                 for part in label.split(" + ")[:-1])
 
 
 def _field(data: dict, key: str, where: str, kind: type) -> Any:
