@@ -98,3 +98,12 @@ def test_solve_rejects_bad_input(robot_dir, tmp_path):
                       tmp_path / "a.vtu"), "expected comma-separated finite numbers")
     assert_one_line_error(softforce("model", "show", tmp_path / "none.toml"), "not found")
     assert not (tmp_path / "a.vtu").exists()
+
+
+def test_a_path_with_brackets_is_printed_as_it_is(tmp_path):
+    # rich would read "[run]" as a markup tag and drop it from the line
+    folder = tmp_path / "[run]"
+    result = softforce("model", "init", folder)
+    assert result.returncode == 0, result.stderr
+    # (a long path may be wrapped anywhere: compared without white space)
+    assert f"wrote{folder / 'diamond.toml'}anditsmesh" in "".join(result.stderr.split())

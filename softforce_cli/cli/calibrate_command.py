@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from softforce_cli.cli.common import ForceOption, JsonOption, print_json, stderr, stdout
@@ -16,7 +17,7 @@ PLOT_SUFFIXES = (".png", ".pdf", ".svg")
 
 def calibrate(
     robot: Annotated[Path, typer.Option("--robot", help="Robot model file (TOML) with its "
-                                        "[[marker]] list.")],
+                                        "[\\[marker]] list.")],
     output: Annotated[Path, typer.Option("-o", "--output", help="Calibration to write (JSON).")],
     markers: Annotated[Path | None, typer.Option(
         "--markers", help="Observed markers, CSV `id,x_mm,y_mm,z_mm` in the camera frame.")
@@ -109,9 +110,9 @@ def calibrate(
     else:
         _print_tables(result)
     for warning in result.warnings:
-        stderr.print(f"[yellow]warning:[/] {warning}", soft_wrap=True)
-    written = f" and [bold]{plot}[/]" if plot is not None else ""
-    stderr.print(f"wrote [bold]{output}[/]{written}")
+        stderr.print(f"[yellow]warning:[/] {escape(warning)}", soft_wrap=True)
+    written = f" and [bold]{escape(str(plot))}[/]" if plot is not None else ""
+    stderr.print(f"wrote [bold]{escape(str(output))}[/]{written}")
 
 
 def _observed(markers: Path | None, recording: Path | None, frame: int | None):
@@ -142,7 +143,8 @@ def _print_tables(result) -> None:
                               else "right")
         for i, name in enumerate(result.cable_names):
             unit = "mm" if result.cable_controls[i] == "displacement" else "N"
-            cables.add_row(name, result.cable_controls[i], f"{result.actuation[i]:.4f} {unit}",
+            shown = round(float(result.actuation[i]), 4) + 0.0  # no "-0.0000" at a bound
+            cables.add_row(name, result.cable_controls[i], f"{shown:.4f} {unit}",
                            f"{result.tensions_n[i]:.4f}", "slack" if result.slack[i] else "taut")
         stdout.print(cables)
 

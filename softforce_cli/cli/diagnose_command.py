@@ -31,7 +31,7 @@ def diagnose(
     no_cache: Annotated[bool, typer.Option(
         "--no-cache", help="Solve every state afresh and keep nothing.")] = False,
     settings_file: Annotated[Path | None, typer.Option(
-        "--settings", help="TOML whose [vision] thresholds the point clouds are taken with, "
+        "--settings", help="TOML whose \\[vision] thresholds the point clouds are taken with, "
                            "as sense reads them (docs/vision.md).")] = None,
     force: ForceOption = False,
 ) -> None:
@@ -60,7 +60,7 @@ def diagnose(
         raise typer.Exit(stop.exit_code)
     _summary(diagnosis)
     stderr.print(f"wrote {output}/ (diagnosis.json, robot.fitted.toml, residual_map.png, "
-                 "signature.png)")
+                 "signature.png)", markup=False)
 
 
 def _summary(diagnosis) -> None:

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+from rich.markup import escape
 from rich.table import Table
 
 from softforce_cli.cli.common import print_json, stderr, stdout
@@ -67,4 +68,4 @@ def calibrate_material(robot_file: Path, output: Path, calibration: Path | None,
         stdout.print(f"{len(fit.estimates_n)} loaded frames{', tared' if fit.tared else ''}, "
                      f"element {fit.element}, law {fit.law}, {fit.passes} passes, fit RMS "
                      f"{fit.fit_rms_mm:.3f} mm")
-    stderr.print(f"wrote [bold]{output}[/]")
+    stderr.print(f"wrote [bold]{escape(str(output))}[/]")

@@ -7,6 +7,7 @@ from typing import Annotated
 
 import numpy as np
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from softforce_cli.cli.common import ForceOption, JsonOption, print_json, stderr, stdout
@@ -40,7 +41,7 @@ def init(
 
     with stderr.status(f"meshing the {resolution} Diamond with gmsh..."):
         path = write_default_robot(directory, resolution, force=force)
-    stderr.print(f"wrote [bold]{path}[/] and its mesh")
+    stderr.print(f"wrote [bold]{escape(str(path))}[/] and its mesh")
 
 
 @app.command("show")
@@ -143,7 +144,7 @@ def reduce(
     max_modes: Annotated[int, typer.Option(help="Cap on the basis size (the update costs "
                                                 "~ modes^2).")] = 200,
     box_fraction: Annotated[float, typer.Option(
-        help="Train over this fraction of each cable's [min, max] from the robot file.")
+        help="Train over this fraction of each cable's \\[min, max] from the robot file.")
     ] = 1.0,
     ecsw_tolerance: Annotated[float | None, typer.Option(
         help="Relative residual of the sampled internal forces over the training set "
@@ -156,14 +157,12 @@ def reduce(
     json_output: JsonOption = False,
     force: ForceOption = False,
 ) -> None:
-    """Train a reduced-order model (POD + ECSW) of the robot; use it with [mesh] reduced.
+    r"""Train a reduced-order model (POD + ECSW) of the robot; use it with \[mesh] reduced.
 
     The snapshots are saved beside OUTPUT while training, so a run stopped after them resumes
     there; they are deleted at the end unless --keep-snapshots.
     """
     import dataclasses
-
-    from rich.markup import escape
 
     from softforce_cli.cli.common import progress_bar
     from softforce_cli.fem.element import ELEMENTS

@@ -69,7 +69,8 @@ def report(
             result = build_report(run, out_dir, sources, force=force,
                                   step=lambda text: status.update(f"{text}..."))
         _print_summary(run, result)
-        stderr.print(f"wrote {result.page} and {len(result.pngs)} figures (PNG) beside it")
+        stderr.print(f"wrote {result.page} and {len(result.pngs)} figures (PNG) beside it",
+                     markup=False)
     else:
         truth = sense_truth(run.sense, sources) if run.sense is not None else None
         _export(run, truth, format_, table, columns, output, force)
@@ -107,7 +108,7 @@ def _export(run, truth, format_: str, table: str | None, columns: str | None,
         sys.stdout.write(text)
         return
     atomic_write_text(output, text, force=force)
-    stderr.print(f"wrote the {name} table to {output}")
+    stderr.print(f"wrote the {name} table to {output}", markup=False)
 
 
 def _write_mcap(run, sources, calibration: Path | None, path: Path, force: bool) -> None:
@@ -139,4 +140,5 @@ def _write_mcap(run, sources, calibration: Path | None, path: Path, force: bool)
         stderr.print(f"[yellow]interrupted ({signal_name()}):[/] {result.frames} frames are in "
                      f"{result.path}")
         raise typer.Exit(stop.exit_code)
-    stderr.print(f"wrote {result.path} ({result.frames} frames with their results)")
+    stderr.print(f"wrote {result.path} ({result.frames} frames with their results)",
+                 markup=False)

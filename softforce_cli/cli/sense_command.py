@@ -36,7 +36,7 @@ def sense(
         "--direction", help="DX,DY,DZ: the known contact's force direction on the robot.")
     ] = None,
     settings_file: Annotated[Path | None, typer.Option(
-        "--settings", help="TOML with [vision] and [estimation] thresholds (docs/sensing.md).")
+        "--settings", help="TOML with \\[vision] and \\[estimation] thresholds (docs/sensing.md).")
     ] = None,
     force_model: Annotated[str | None, typer.Option(
         "--force-model", help="axis (default): one push per contact along the pushing "
@@ -108,7 +108,7 @@ def sense(
         stderr.print(f"[yellow]interrupted ({signal_name()}):[/] the {summary.frames} frames "
                      f"processed are in {where}")
         raise typer.Exit(stop.exit_code if stop.requested else interrupted_exit_code())
-    stderr.print(f"wrote {where}")
+    stderr.print(f"wrote {where}", markup=False)
 
 
 def _run(prepared, stop_requested):
