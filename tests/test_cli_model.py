@@ -50,7 +50,7 @@ def test_show_lists_the_files_effects(robot_dir, tmp_path):
                                   "cable_slack[north]": {"slack_mm": 2.5}}
     table = softforce("model", "show", fitted).stdout
     assert "effect support_contact" in table and "table_z_mm = -7.25" in table
-    assert "slack_mm = 2.5" in table
+    assert "effect cable_slack[north]" in table and "slack_mm = 2.5" in table
 
 
 def test_solve_writes_the_deformed_mesh_in_input_node_order(robot_dir, tmp_path):

@@ -707,6 +707,16 @@ def test_cli_info_json_and_text(recording):
     assert "64x48" in text.stdout and "fx 60.250" in text.stdout
 
 
+def test_cli_info_shows_the_files_own_names_as_written(tmp_path):
+    # a scenario or path with brackets is not rich markup: nothing of it is dropped
+    path = tmp_path / "[take]" / "rec.mcap"
+    path.parent.mkdir()
+    write_recording(make_frames(2), path, metadata={"scenario": "[arm] press.toml"})
+    text = CliRunner().invoke(record_commands.app, ["info", str(path)], terminal_width=250)
+    assert text.exit_code == 0, text.output
+    assert "scenario=[arm] press.toml" in text.stdout and "[take]" in text.stdout
+
+
 def test_cli_info_on_truncated_file_warns_on_stderr_only(recording, tmp_path):
     path, _ = recording
     cut = tmp_path / "cut.mcap"

@@ -9,6 +9,7 @@ import numpy as np
 import typer
 from rich.markup import escape
 from rich.table import Table
+from rich.text import Text
 
 from softforce_cli.cli.common import ForceOption, JsonOption, print_json, stderr, stdout
 from softforce_cli.errors import ModelError
@@ -65,27 +66,32 @@ def show(
     if json_output:
         print_json(summary)
         return
-    table = Table(title=f"robot {summary['name']}", show_header=False)
-    table.add_row("file", summary["source"])
-    table.add_row("mesh", summary["mesh"])
-    table.add_row("nodes / tetrahedra", f"{summary['nodes']} / {summary['tetrahedra']}")
-    table.add_row("element", f"{summary['element']} ({summary['fe_nodes']} FE nodes)")
-    table.add_row("volume", f"{summary['volume_mm3'] / 1e3:.1f} cm^3")
-    table.add_row("mass", f"{summary['mass_kg']:.3f} kg")
     material = summary["material"]
-    table.add_row("material", f"{material['law']}, E = {material['young_modulus_mpa']} MPa, "
-                              f"nu = {material['poisson_ratio']}, g = {material['gravity_mm_s2']}")
-    table.add_row("fixed nodes", str(summary["fixed_nodes"]))
-    for cable in summary["cables"]:
-        table.add_row(f"cable {cable['name']}", f"{cable['control']} in [{cable['min']}, "
-                                                f"{cable['max']}], pull {cable['pull_point_mm']}")
-    table.add_row("feature points", str(summary["features"]))
-    table.add_row("markers", ", ".join(summary["markers"]) or "none")
-    for label, parameters in summary["effects"].items():
-        table.add_row(f"effect {label}", ", ".join(f"{name} = {value:.6g}" if isinstance(
-            value, float) else f"{name} = {value}" for name, value in parameters.items()))
-    if picture is not None:
-        table.add_row("picture", str(picture))
+    rows = [
+        ("file", summary["source"]),
+        ("mesh", summary["mesh"]),
+        ("nodes / tetrahedra", f"{summary['nodes']} / {summary['tetrahedra']}"),
+        ("element", f"{summary['element']} ({summary['fe_nodes']} FE nodes)"),
+        ("volume", f"{summary['volume_mm3'] / 1e3:.1f} cm^3"),
+        ("mass", f"{summary['mass_kg']:.3f} kg"),
+        ("material", f"{material['law']}, E = {material['young_modulus_mpa']} MPa, "
+                     f"nu = {material['poisson_ratio']}, g = {material['gravity_mm_s2']}"),
+        ("fixed nodes", str(summary["fixed_nodes"])),
+        *((f"cable {cable['name']}", f"{cable['control']} in [{cable['min']}, {cable['max']}], "
+           f"pull {cable['pull_point_mm']}") for cable in summary["cables"]),
+        ("feature points", str(summary["features"])),
+        ("markers", ", ".join(summary["markers"]) or "none"),
+        *((f"effect {label}", ", ".join(f"{name} = {value:.6g}" if isinstance(value, float)
+                                        else f"{name} = {value}"
+                                        for name, value in parameters.items()))
+          for label, parameters in summary["effects"].items()),
+        *((("picture", str(picture)),) if picture is not None else ()),
+    ]
+    table = Table(title=Text(f"robot {summary['name']}"), show_header=False)
+    table.add_column()
+    table.add_column(overflow="fold")  # a long path wraps whole, not cut short
+    for key, value in rows:  # plain text: an effect's target is in brackets, not markup
+        table.add_row(Text(key), Text(value))
     stdout.print(table)
 
 
