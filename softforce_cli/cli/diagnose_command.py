@@ -56,7 +56,8 @@ def diagnose(
         diagnosis = run_diagnosis(inputs, stage, lambda: stop.requested)
     if diagnosis.interrupted:
         stderr.print(f"[yellow]interrupted ({signal_name()}) during {diagnosis.stage}:[/] "
-                     f"what was done is in {output}/diagnosis.json (\"interrupted\": true)")
+                     f"what was done is in {escape(str(output))}/diagnosis.json "
+                     '("interrupted": true)')
         raise typer.Exit(stop.exit_code)
     _summary(diagnosis)
     stderr.print(f"wrote {output}/ (diagnosis.json, robot.fitted.toml, residual_map.png, "

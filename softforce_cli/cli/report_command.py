@@ -138,7 +138,7 @@ def _write_mcap(run, sources, calibration: Path | None, path: Path, force: bool)
                               stop_requested=lambda: stop.requested)
     if result.interrupted:
         stderr.print(f"[yellow]interrupted ({signal_name()}):[/] {result.frames} frames are in "
-                     f"{result.path}")
+                     f"{escape(str(result.path))}")
         raise typer.Exit(stop.exit_code)
     stderr.print(f"wrote {result.path} ({result.frames} frames with their results)",
                  markup=False)

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from softforce_cli.cli.common import ForceOption, stderr, stdout
@@ -106,7 +107,7 @@ def sense(
     where = f"{output}/ (contacts.csv, frames.csv, sense.json)"
     if summary.interrupted:
         stderr.print(f"[yellow]interrupted ({signal_name()}):[/] the {summary.frames} frames "
-                     f"processed are in {where}")
+                     f"processed are in {escape(where)}")
         raise typer.Exit(stop.exit_code if stop.requested else interrupted_exit_code())
     stderr.print(f"wrote {where}", markup=False)
 

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.markup import escape
 
 from softforce_cli.cli.common import ForceOption, progress_bar, stderr
 
@@ -30,8 +31,8 @@ def simulate(
         result = run_simulation(simulation, progress=advance)
     note = " (interrupted: the frames done are kept)" if result.interrupted else ""
     stderr.print(
-        f"wrote {result.frames} frames to [bold]{result.recording}[/] and the ground "
-        f"truth to [bold]{result.truth}[/]{note}"
+        f"wrote {result.frames} frames to [bold]{escape(str(result.recording))}[/] and the "
+        f"ground truth to [bold]{escape(str(result.truth))}[/]{note}"
     )
     if result.interrupted:
         from softforce_cli.cli.interrupt import interrupted_exit_code
