@@ -101,6 +101,10 @@ CASES: dict[str, tuple] = {
                "stiffness_n_per_mm", 5.0),
     "base_2": ("compliant_base", None, 'name = "compliant_base"\nstiffness_n_per_mm = 2.0',
                "stiffness_n_per_mm", 2.0),
+    # a drift the body holds on both timelines: creep_0.5's truth tips over in frame 6
+    # (docs/diagnosis.md, limits), and creep_0.3's softest frame is 4-6% above that fold
+    "creep_0.2": ("viscoelastic_creep", None, 'name = "viscoelastic_creep"\n'
+                  "relaxation = 0.2\ntime_constant_s = 0.5", "relaxation", 0.2),
     "creep_0.3": ("viscoelastic_creep", None, 'name = "viscoelastic_creep"\n'
                   "relaxation = 0.3\ntime_constant_s = 0.5", "relaxation", 0.3),
     "creep_0.5": ("viscoelastic_creep", None, 'name = "viscoelastic_creep"\n'

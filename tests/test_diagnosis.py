@@ -4,6 +4,7 @@ a problem with a known answer (held-out selection)."""
 
 import os
 import tomllib
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -1213,6 +1214,51 @@ def test_a_refit_pulled_back_learns_from_the_exact_shift_to_where_it_could_solve
     fitted = refit(Snapping(), softer, np.array([0.65]), False, lambda f, j, v: np.zeros(1))
     assert fitted.values[0] == pytest.approx(truth, rel=1e-3)
     assert len(fitted.unreached) == 1  # the screened start only
+
+
+def test_a_step_to_a_bound_is_tried_with_that_parameter_held():
+    """Creep's first-order model, whose tangent at a relaxation of 0.32 over 0.79 s sends the
+    time constant to its bound (0.05 s), where every hold of 0.5 s or more is fully relaxed
+    and the time constant no longer moves anything: the refit ended there (0.089 at 0.05 s
+    for 0.2 at 0.5 s; the study's creep_0.2 ended at 0.123 at 0.05 s, its exact objective
+    0.41 against 0.096 at the truth). The step with the time constant held is solved too and
+    kept, being better, and the refit goes on from the interior."""
+    from types import SimpleNamespace
+
+    from softforce_cli.diagnosis.refit import Prediction, refit
+
+    frames, nodes = 24, 30
+    levels = np.repeat([0.0, 3.0, 6.0, 9.0, 6.0, 3.0, 0.0, 6.0], 3)
+    pattern = np.sin(np.linspace(0, 3, nodes))[None] * (1.0 + levels[:, None])
+    contexts = tuple(frame_contexts(np.arange(frames) * 0.5, levels[:, None]))
+    holds = np.array([c.hold_s for c in contexts])  # 0, 0.5 and 1 s in each input
+    inputs = replace(_linear_inputs(frames, nodes, pattern), contexts=contexts)
+    creep = Candidate((Hypothesis("viscoelastic_creep", None, ("relaxation", "time_constant_s"),
+                                  np.array([0.0, 1.0]), np.array([0.0, 0.05]),
+                                  np.array([0.9, 1000.0])),))
+    truth = (0.2, 0.5)
+
+    def moved(relaxation: float, time_constant_s: float) -> np.ndarray:
+        """The body's motion: 1 / modulus - 1, twice as far as that near a modulus of 0.5."""
+        modulus = 1.0 - relaxation * (1.0 - np.exp(-holds / time_constant_s))
+        return -((1.0 / modulus - 1.0) * 0.5 / (modulus - 0.5))[:, None] * pattern
+
+    class Exact:
+        basis = SimpleNamespace(inputs_for=lambda field: inputs, table=None,
+                                robot_from_camera=inputs.robot_from_camera)
+        nominal_field = _field(moved(*truth) - moved(0.0, 1.0))
+
+        def predict(self, candidate, values, near=None):
+            self.values = values
+            return Prediction(np.zeros((1, nodes, 3)), np.zeros(frames, dtype=int), 1)
+
+        def field(self, prediction):
+            return _field(moved(*truth) - moved(*self.values))
+
+    fitted = refit(Exact(), creep, np.array([0.3166, 0.79]), False,
+                   lambda f, j, v: np.zeros(2))
+    assert fitted.values[0] == pytest.approx(truth[0], abs=0.05)
+    assert 0.3 < fitted.values[1] < 1.0  # not at the bound: 0.67 s
 
 
 def _saturating(p: float) -> float:

@@ -422,23 +422,29 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
         return table_rows(candidate, basis.table, basis.robot_from_camera, at,
                           float(field.weight.sum()))
 
+    def objective(field: Field, at: np.ndarray) -> float:
+        return _objective(field, relative, table(field, at))
+
     def tangent(field: Field, at: np.ndarray) -> np.ndarray:
         """(E, k) the first-order model's Jacobian at `at` in the step coordinates."""
         return shift_jacobian(candidate, exact.basis.inputs_for(field), at) \
             * coordinates.per_unit(at)
 
-    def stepped(field: Field, at: np.ndarray, jacobian: np.ndarray, corrected: np.ndarray
-                ) -> np.ndarray:
-        """The Gauss-Newton trial from `at`, or _curved_step's where the step is curved."""
+    def stepped(field: Field, at: np.ndarray, jacobian: np.ndarray, corrected: np.ndarray,
+                held: np.ndarray | None = None) -> np.ndarray:
+        """The Gauss-Newton trial from `at`, or _curved_step's where the step is curved;
+        the parameters `held` (k,) bool, where given, kept at their values."""
+        free = np.ones(len(at), dtype=bool) if held is None else ~held
+        jacobian, corrected = jacobian * free, corrected * free
         rows = table(field, at)
         if rows is not None:  # in the step's coordinates, as the robot's Jacobian
-            rows = TableRows(rows.left_mm, rows.jacobian * coordinates.per_unit(at),
+            rows = TableRows(rows.left_mm, rows.jacobian * coordinates.per_unit(at) * free,
                              rows.weight)
         step = _step(field, corrected, relative, rows)
         curved = _curved_step(candidate, exact.basis.inputs_for(field), field, at, step,
                               corrected, jacobian, coordinates, relative)
-        return np.clip(coordinates.moved(at, step if curved is None else curved),
-                       candidate.lower, candidate.upper)
+        step = (step if curved is None else curved) * free
+        return np.clip(coordinates.moved(at, step), candidate.lower, candidate.upper)
 
     solves = prediction.solves
     field = exact.field(prediction)
@@ -475,19 +481,43 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
                 break
             solves += moved.solves
             trial_field = exact.field(moved)
-            if (_objective(trial_field, relative, table(trial_field, trial))
-                    < _objective(field, relative, table(field, values))):
+            if objective(trial_field, trial) < objective(field, values):
                 break
             # past the minimum along the step
             moved, trial = None, coordinates.midway(values, trial)
         if moved is None:
             break
+        bounded = _landed_on_bounds(candidate, values, trial)
+        if bounded.any() and not bounded.all():
+            # the first-order model sent a parameter to the end of its range, past where it
+            # holds (creep's time constant to 0.05 s, a basin apart from the truth's): the
+            # step of the others with it held is solved too, and the better of the two kept
+            other, at = _reached(exact, candidate, values,
+                                 stepped(field, values, jacobian, corrected, bounded),
+                                 coordinates, unreached, prediction)
+            if other is not None:
+                solves += other.solves
+                other_field = exact.field(other)
+                if objective(other_field, at) < objective(trial_field, trial):
+                    moved, trial, trial_field = other, at, other_field
         secant = secant_update(secant, field, trial_field, jacobian,
                                coordinates.step(values, trial), relative, camera_parameters)
         values, prediction, field = trial, moved, trial_field
         jacobian = tangent(field, values)
     return Refit(candidate, values, field, jacobian @ secant / coordinates.per_unit(values),
                  prediction, solves, values, tuple(unreached))
+
+
+def _landed_on_bounds(candidate: Candidate, values: np.ndarray, trial: np.ndarray
+                      ) -> np.ndarray:
+    """(k,) bool: the parameters the step from values (k,) to trial (k,) ended at a bound of
+    their range they did not start at (within a millionth: a step curved or taken in the
+    logarithm ends 6e-9 from the bound it was clipped to)."""
+    def at(bound: np.ndarray, point: np.ndarray) -> np.ndarray:
+        return np.isclose(point, bound, rtol=1e-6, atol=0.0) | (point == bound)
+
+    return ((at(candidate.lower, trial) & ~at(candidate.lower, values))
+            | (at(candidate.upper, trial) & ~at(candidate.upper, values)))
 
 
 def _curved_step(candidate: Candidate, inputs, field: Field, values: np.ndarray,
