@@ -514,7 +514,7 @@ def _landed_on_bounds(candidate: Candidate, values: np.ndarray, trial: np.ndarra
     their range they did not start at (within a millionth: a step curved or taken in the
     logarithm ends 6e-9 from the bound it was clipped to)."""
     def at(bound: np.ndarray, point: np.ndarray) -> np.ndarray:
-        return np.isclose(point, bound, rtol=1e-6, atol=0.0) | (point == bound)
+        return np.isclose(point, bound, rtol=1e-6, atol=0.0)
 
     return ((at(candidate.lower, trial) & ~at(candidate.lower, values))
             | (at(candidate.upper, trial) & ~at(candidate.upper, values)))
