@@ -1261,6 +1261,26 @@ def test_a_step_to_a_bound_is_tried_with_that_parameter_held():
     assert 0.3 < fitted.values[1] < 1.0  # not at the bound: 0.67 s
 
 
+def test_the_steps_tried_beside_one_that_ends_at_bounds():
+    """Which parameters a step left at their bounds (to rounding: exp(log(0.05)) and a
+    relaxation 3e-17 above 0), and which are held in the steps tried beside it: those, or
+    each alone when the step sent every one to a bound (creep on the second timeline went
+    from (0.137, 0.23 s) to (0, 1000 s))."""
+    from softforce_cli.diagnosis.refit import _holds_at_bounds, _landed_on_bounds
+
+    creep = Candidate((Hypothesis("viscoelastic_creep", None, ("relaxation", "time_constant_s"),
+                                  np.array([0.0, 1.0]), np.array([0.0, 0.05]),
+                                  np.array([0.9, 1000.0])),))
+    both = _landed_on_bounds(creep, np.array([0.137, 0.23]), np.array([2.8e-17, 1000 - 6e-12]))
+    one = _landed_on_bounds(creep, np.array([0.32, 0.79]), np.array([0.12, 0.05 + 3e-10]))
+    stays = _landed_on_bounds(creep, np.array([0.0, 0.79]), np.array([0.0, 0.5]))
+    assert both.tolist() == [True, True] and one.tolist() == [False, True]
+    assert stays.tolist() == [False, False]
+    assert [h.tolist() for h in _holds_at_bounds(one)] == [[False, True]]
+    assert [h.tolist() for h in _holds_at_bounds(both)] == [[True, False], [False, True]]
+    assert _holds_at_bounds(stays) == [] and _holds_at_bounds(np.array([True])) == []
+
+
 def _saturating(p: float) -> float:
     """A Diamond arm twice as stiff: the exact shift a fifth to a tenth of the tangent's."""
     return 0.25 * p / (1.0 + 2.0 * p)

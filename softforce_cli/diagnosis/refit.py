@@ -474,6 +474,10 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
                 REFIT_TOLERANCE * span, 0.5 * half_widths(field, reported, values))):
             return Refit(candidate, trial, field, reported, prediction, solves, values,
                          tuple(unreached))
+        # the first-order model sent a parameter to the end of its range, past where it
+        # holds (creep's time constant to 0.05 s, a basin apart from the truth's): the step
+        # of the others with it held is solved too, and the best kept
+        holds = _holds_at_bounds(_landed_on_bounds(candidate, values, trial))
         for _ in range(OVERSHOOT_HALVINGS + 1):
             moved, trial = _reached(exact, candidate, values, trial, coordinates, unreached,
                                     prediction)
@@ -485,21 +489,19 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
                 break
             # past the minimum along the step
             moved, trial = None, coordinates.midway(values, trial)
+        for held in holds:
+            other, at = _reached(exact, candidate, values,
+                                 stepped(field, values, jacobian, corrected, held),
+                                 coordinates, unreached, prediction)
+            if other is None:
+                continue
+            solves += other.solves
+            other_field = exact.field(other)
+            if objective(other_field, at) < (objective(field, values) if moved is None
+                                             else objective(trial_field, trial)):
+                moved, trial, trial_field = other, at, other_field
         if moved is None:
             break
-        bounded = _landed_on_bounds(candidate, values, trial)
-        if bounded.any() and not bounded.all():
-            # the first-order model sent a parameter to the end of its range, past where it
-            # holds (creep's time constant to 0.05 s, a basin apart from the truth's): the
-            # step of the others with it held is solved too, and the better of the two kept
-            other, at = _reached(exact, candidate, values,
-                                 stepped(field, values, jacobian, corrected, bounded),
-                                 coordinates, unreached, prediction)
-            if other is not None:
-                solves += other.solves
-                other_field = exact.field(other)
-                if objective(other_field, at) < objective(trial_field, trial):
-                    moved, trial, trial_field = other, at, other_field
         secant = secant_update(secant, field, trial_field, jacobian,
                                coordinates.step(values, trial), relative, camera_parameters)
         values, prediction, field = trial, moved, trial_field
@@ -511,13 +513,27 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
 def _landed_on_bounds(candidate: Candidate, values: np.ndarray, trial: np.ndarray
                       ) -> np.ndarray:
     """(k,) bool: the parameters the step from values (k,) to trial (k,) ended at a bound of
-    their range they did not start at (within a millionth: a step curved or taken in the
-    logarithm ends 6e-9 from the bound it was clipped to)."""
+    their range they did not start at (within a millionth, or a billionth of the range at
+    a bound of 0: a step curved or taken in the logarithm ends 6e-9 from the bound it was
+    clipped to, creep's relaxation 3e-17 from 0)."""
+    span = candidate.upper - candidate.lower
+
     def at(bound: np.ndarray, point: np.ndarray) -> np.ndarray:
-        return np.isclose(point, bound, rtol=1e-6, atol=0.0)
+        return np.abs(point - bound) <= np.maximum(1e-6 * np.abs(bound), 1e-9 * span)
 
     return ((at(candidate.lower, trial) & ~at(candidate.lower, values))
             | (at(candidate.upper, trial) & ~at(candidate.upper, values)))
+
+
+def _holds_at_bounds(bounded: np.ndarray) -> list[np.ndarray]:
+    """The parameters to hold (each (k,) bool) in the steps tried beside one that ended the
+    parameters `bounded` (k,) at their bounds: those, or, where it ended every one there (the
+    study's creep on its second timeline: relaxation 0 and 1000 s), each alone in turn."""
+    if not bounded.any() or len(bounded) == 1:
+        return []
+    if not bounded.all():
+        return [bounded]
+    return list(np.eye(len(bounded), dtype=bool))
 
 
 def _curved_step(candidate: Candidate, inputs, field: Field, values: np.ndarray,
