@@ -478,6 +478,7 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
         # holds (creep's time constant to 0.05 s, a basin apart from the truth's): the step
         # of the others with it held is solved too, and the best kept
         holds = _holds_at_bounds(_landed_on_bounds(candidate, values, trial))
+        best = objective(field, values)
         for _ in range(OVERSHOOT_HALVINGS + 1):
             moved, trial = _reached(exact, candidate, values, trial, coordinates, unreached,
                                     prediction)
@@ -485,7 +486,8 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
                 break
             solves += moved.solves
             trial_field = exact.field(moved)
-            if objective(trial_field, trial) < objective(field, values):
+            if (reached := objective(trial_field, trial)) < best:
+                best = reached
                 break
             # past the minimum along the step
             moved, trial = None, coordinates.midway(values, trial)
@@ -497,9 +499,8 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
                 continue
             solves += other.solves
             other_field = exact.field(other)
-            if objective(other_field, at) < (objective(field, values) if moved is None
-                                             else objective(trial_field, trial)):
-                moved, trial, trial_field = other, at, other_field
+            if (reached := objective(other_field, at)) < best:
+                moved, trial, trial_field, best = other, at, other_field, reached
         if moved is None:
             break
         secant = secant_update(secant, field, trial_field, jacobian,
