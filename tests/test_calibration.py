@@ -400,6 +400,9 @@ def test_result_json_round_trip(coarse, coarse_truth, tmp_path):
                                   result.robot_from_camera.rotation)
     np.testing.assert_array_equal(again.actuation, result.actuation)
     assert result_to_dict(again)["markers"] == document["markers"]
+    np.testing.assert_array_equal(again.pose_covariance, result.pose_covariance)
+    with pytest.raises(CalibrationError, match="pose_covariance"):
+        result_from_dict({**document, "pose_covariance": [[1.0, 2.0], [0.0, 1.0]]}, "x.json")
     with pytest.raises(CalibrationError, match="missing field"):
         result_from_dict({"rotation": np.eye(3).tolist()}, "x.json")
 
@@ -414,8 +417,12 @@ def test_cli_writes_calibration_table_and_plot(coarse, coarse_truth, tmp_path):
     run = softforce(*args)
     assert run.returncode == 0, run.stderr
     assert "residual RMS" in run.stdout and "north" in run.stdout
+    assert "pose uncertainty" in run.stdout
     document = json.loads(output.read_text())
     assert document["residual_rms_mm"] < 0.03
+    # noise-free markers: the pose is as certain as the model's own rounding lets it be
+    spread = np.sqrt(np.diag(document["pose_covariance"]))
+    assert np.degrees(spread[:3]).max() < 0.02 and spread[3:].max() < 0.03
     np.testing.assert_allclose(document["actuation"]["values"], DISPLACEMENT_MM, rtol=1e-3)
     assert plot.stat().st_size > 1000
     assert_one_line_error(softforce(*args), "--force")

@@ -26,16 +26,27 @@ def _plane_at(height: float, slope_x: float = 0.0) -> tuple[np.ndarray, float]:
 
 
 def test_observed_table_is_its_height_over_the_footprint_above_the_robot_base():
-    table = observed_table([_plane_at(-37.4), None, _plane_at(-37.6)], BODY)
+    table = observed_table([_plane_at(-37.4), None, _plane_at(-37.6)], BODY, 0.5)
     np.testing.assert_allclose(table.observed_mm, -0.5, atol=1e-12)
     np.testing.assert_allclose(table.points_mm[:, 2], -37.0)
     assert table.points_mm[:, 0].min() == -101.0 and table.points_mm[:, 1].max() == 101.0
-    tilted = observed_table([_plane_at(-37.0, 0.01)], BODY)
+    tilted = observed_table([_plane_at(-37.0, 0.01)], BODY, 0.5)
     np.testing.assert_allclose(tilted.observed_mm, 0.01 * tilted.points_mm[:, 0], atol=1e-12)
     # 1 mm, plus a tenth of the offset seen: a camera effect refitted on the robot alone
     assert table.tolerance_mm == pytest.approx(1.05)
-    assert observed_table([None], BODY) is None
-    assert observed_table([_plane_at(-137.0)], BODY) is None  # a floor, not its table
+    assert observed_table([None], BODY, 0.5) is None
+    assert observed_table([_plane_at(-137.0)], BODY, 50.0) is None  # a floor, not its table
+
+
+def test_a_table_the_camera_did_not_move_is_not_the_robots():
+    """A camera effect moves the robot about as far as the table: a table 29.9 mm below the
+    robot's base beside a robot within 1.2 mm of its model is another surface (a robot
+    clamped above its table), while the same table beside a robot 12 mm off is evidence (a
+    depth scale of 5% moves both)."""
+    assert observed_table([_plane_at(-66.9)], BODY, 1.2) is None
+    assert observed_table([_plane_at(-66.9)], BODY, 12.0).observed_mm == pytest.approx(-29.9)
+    assert observed_table([_plane_at(-40.0)], BODY, 1.2).observed_mm == pytest.approx(-3.0)
+    assert observed_table([_plane_at(-42.0)], BODY, 1.2) is None  # 5 mm > 1 + 3 x 1.2
 
 
 @pytest.mark.parametrize(("name", "values", "expected"), [
@@ -46,13 +57,13 @@ def test_observed_table_is_its_height_over_the_footprint_above_the_robot_base():
     ("gravity", {"scale": 1.3}, 0.0),  # physics leaves the table alone
 ])
 def test_table_shift_of_camera_effects(name, values, expected):
-    table = observed_table([_plane_at(-37.0)], BODY)
+    table = observed_table([_plane_at(-37.0)], BODY, 0.5)
     shift = table.shift((make_effect(name, None, **values),), CAMERA)
     np.testing.assert_allclose(shift, expected, atol=1e-9)
 
 
 def test_a_tilted_camera_tilts_the_table_by_its_angle():
-    table = observed_table([_plane_at(-37.0)], BODY)
+    table = observed_table([_plane_at(-37.0)], BODY, 0.5)
     shift = table.shift((make_effect("extrinsic_offset", None, rotation_y_deg=0.5),), CAMERA)
     slope = np.polyfit(table.points_mm[:, 0], shift, 1)[0]
     assert abs(slope) == pytest.approx(np.tan(np.radians(0.5)), rel=1e-3)
@@ -67,7 +78,8 @@ def _camera_inputs(depth_scale: float) -> tuple[Inputs, Field]:
     frames = 4
     field = Field(np.repeat(np.arange(frames), 81), np.tile(np.arange(81), frames),
                   np.tile(-depth_scale * (580.0 - 63.0), 81 * frames), np.full(81 * frames, 50.0))
-    table = observed_table([_plane_at(-37.0 - depth_scale * TABLE_DEPTH)], BODY)
+    table = observed_table([_plane_at(-37.0 - depth_scale * TABLE_DEPTH)], BODY,
+                           abs(depth_scale) * (580.0 - 63.0))
     contexts = tuple(frame_contexts(np.arange(frames) * 0.5, np.zeros((frames, 1))))
     count = len(field.frame)
     inputs = Inputs(field, np.zeros(count, dtype=int), np.tile([0.0, 0.0, 1.0], (count, 1)),

@@ -63,7 +63,7 @@ def _markers_seen(turn_deg: float, seed: int):
     basis = Basis(np.zeros((2, 1, 3)), np.zeros((2, 1, 3)), np.zeros((2, 0, 1)), ColumnSet(()),
                   of_frame, tuple(frame_contexts(0.5 * np.arange(FRAMES), np.zeros((FRAMES, 1)))),
                   (), CAMERA, np.zeros((2, 0)), np.zeros((2, 0, 1, 3)),
-                  observed_table([_plane_at(-37.0)], BODY))
+                  observed_table([_plane_at(-37.0)], BODY, 0.5))
     return field, marker_inputs(field, predicted, basis), of_frame
 
 

@@ -40,6 +40,7 @@ from softforce_cli.calibration.actuation_qp import (
     solve_actuation_qp,
 )
 from softforce_cli.calibration.linear_model import LinearModel, linear_model
+from softforce_cli.calibration.pose_covariance import pose_covariance
 from softforce_cli.calibration.result import CalibrationResult, MarkerResidual
 from softforce_cli.calibration.rigid import (
     COLLINEAR_RATIO,
@@ -188,8 +189,8 @@ def calibrate(
         raise _bounds_error(robot, final.positions_mm, final.tensions_n, bounds,
                             final.solution.bound_violation)
     positions = final.lm.positions(final.tensions_n)
-    return _result(robot, observed, indices, used, positions, final.tensions_n, bounds,
-                   history, durations, converged, settings, source,
+    return _result(robot, observed, indices, used, positions, final.tensions_n, final.lm.W_ea,
+                   bounds, history, durations, converged, settings, source,
                    time.perf_counter() - started)
 
 
@@ -345,9 +346,10 @@ def _bounds_error(robot, positions, tensions, bounds, violation) -> CalibrationE
                             f"cables' min/max in {robot.config.source.name} and the markers")
 
 
-def _result(robot, observed, indices, used, positions, tensions, bounds, history, durations,
-            converged, settings, source, elapsed_s) -> CalibrationResult:
-    """Final rigid fit on the converged configuration and the per-marker residuals."""
+def _result(robot, observed, indices, used, positions, tensions, marker_compliance, bounds,
+            history, durations, converged, settings, source, elapsed_s) -> CalibrationResult:
+    """Final rigid fit on the converged configuration, the per-marker residuals and the
+    pose's covariance (the used markers' compliance (3k, a) to the cables' tensions)."""
     camera_mm = np.asarray(observed.positions_mm, dtype=float).reshape(-1, 3)
     model_mm = robot.marker_points.subset(indices).positions(positions)
     transform = fit_rigid_transform(camera_mm[used], model_mm[used])
@@ -398,5 +400,7 @@ def _result(robot, observed, indices, used, positions, tensions, bounds, history
         iteration_durations_s=tuple(durations),
         elapsed_s=elapsed_s,
         warnings=tuple(warnings),
+        pose_covariance=pose_covariance(model_mm[used], residual[used],
+                                        marker_compliance[:, ~slack]),
         positions_mm=positions,
     )

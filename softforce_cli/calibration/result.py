@@ -8,6 +8,7 @@
                     "controls": [...per cable...], "values": [...mm or N...],
                     "tensions_n": [...], "slack": [...]},
       "residual_rms_mm": r, "residual_history_mm": [...per outer iteration...],
+      "pose_covariance": [[...6...] x 6] | null,  rad (about x, y, z), then mm (x, y, z)
       "markers": [{"id", "residual_mm", "residual_vector_mm", "observed_camera_mm",
                    "model_robot_mm", "used", "outlier", "left_out_mm"}, ...],
       "outliers": [...], "excluded": [...], "unobserved": [...],
@@ -68,6 +69,9 @@ class CalibrationResult:
     tensions_n     : (a,) cable tensions at the calibrated equilibrium.
     slack          : (a,) bool, tension below SLACK_TENSION_N.
     residual_rms_mm: RMS over the used markers of |R p_cam + T - model|.
+    pose_covariance: (6, 6) covariance of a small correction of the pose (rotations about the
+                     robot frame's x, y, z axes through its origin, rad; then translations,
+                     mm: calibration.pose_covariance), or None (a pose without markers).
     positions_mm   : (n, 3) the calibrated FE configuration (not written to JSON).
     """
 
@@ -91,6 +95,7 @@ class CalibrationResult:
     elapsed_s: float = 0.0
     warnings: tuple[str, ...] = ()
     robust: bool = False
+    pose_covariance: np.ndarray | None = None
     positions_mm: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
@@ -132,6 +137,8 @@ def result_to_dict(result: CalibrationResult) -> dict[str, Any]:
         },
         "residual_rms_mm": result.residual_rms_mm,
         "residual_history_mm": list(result.residual_history_mm),
+        "pose_covariance": (None if result.pose_covariance is None
+                            else result.pose_covariance.tolist()),
         "markers": [
             {
                 "id": m.id,
@@ -160,6 +167,16 @@ def result_to_dict(result: CalibrationResult) -> dict[str, Any]:
 
 def result_to_json(result: CalibrationResult) -> str:
     return json.dumps(result_to_dict(result), indent=2) + "\n"
+
+
+def _pose_covariance(value: Any) -> np.ndarray | None:
+    """The document's pose_covariance (6 x 6 numbers, symmetric) or None where absent."""
+    if value is None:
+        return None
+    covariance = np.array(value, dtype=float)
+    if covariance.shape != (6, 6) or not np.allclose(covariance, covariance.T):
+        raise ValueError("pose_covariance must be a symmetric 6x6 matrix")
+    return covariance
 
 
 def result_from_dict(data: dict[str, Any], where: str = "calibration") -> CalibrationResult:
@@ -206,6 +223,7 @@ def result_from_dict(data: dict[str, Any], where: str = "calibration") -> Calibr
             elapsed_s=float(data.get("elapsed_s", 0.0)),
             warnings=tuple(data.get("warnings", [])),
             robust=bool(data.get("robust", False)),
+            pose_covariance=_pose_covariance(data.get("pose_covariance")),
         )
     except (KeyError, TypeError, ValueError, AttributeError, IndexError, OverflowError) as error:
         # AttributeError: a field that should be an object is a list, number or string

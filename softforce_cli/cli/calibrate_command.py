@@ -128,6 +128,8 @@ def _observed(markers: Path | None, recording: Path | None, frame: int | None):
 
 
 def _print_tables(result) -> None:
+    import numpy as np
+
     transform = result.robot_from_camera
     pose = Table(title="robot_from_camera: p_robot = R p_cam + T", title_justify="left")
     for name in ("R", "", "", "T (mm)"):
@@ -135,6 +137,12 @@ def _print_tables(result) -> None:
     for row, t in zip(transform.rotation, transform.translation_mm, strict=True):
         pose.add_row(*(f"{v:+.5f}" for v in row), f"{t:+.3f}")
     stdout.print(pose)
+    if result.pose_covariance is not None:
+        spread = np.sqrt(np.clip(np.diag(result.pose_covariance), 0.0, None))
+        turns = ", ".join(f"{v:.2f}" for v in np.degrees(spread[:3]))
+        moves = ", ".join(f"{v:.2f}" for v in spread[3:])
+        stdout.print(f"pose uncertainty (one standard deviation, robot frame x, y, z): turns "
+                     f"{turns} deg, moves {moves} mm")
 
     if result.cable_names:  # a passive body has no actuation to show
         cables = Table(title="actuation", title_justify="left")

@@ -34,9 +34,11 @@ from softforce_cli.diagnosis.residuals import (
     measure,
     node_rms,
     node_systematic_mm,
+    static_after_pose_mm,
     static_mm,
 )
 from softforce_cli.diagnosis.selection import (
+    NEAR_FLOOR,
     SAME_FIT_SHARE,
     UNEXPLAINED_MM,
     clear_improvement,
@@ -187,6 +189,9 @@ class Diagnosis:
     marker_inputs: Inputs | None = None
     marker_floor_mm: float = float("nan")
     marker_screened: list[Screened] = field(default_factory=list)
+    # the calibration's camera pose uncertainty (calibration.pose_covariance), None for a
+    # pose given without markers
+    pose_covariance: np.ndarray | None = None
     stage: str = "observations"
     interrupted: bool = False
 
@@ -296,10 +301,12 @@ class _Judge:
 
 def diagnose_observations(robot: Robot, observations: Observations, cache: SolveCache,
                           stage: Stage | None = None,
-                          stop_requested: Callable[[], bool] = lambda: False) -> Diagnosis:
-    """Screen every hypothesis, refit the best, choose what the data supports. Returns the
-    Diagnosis reached so far (interrupted) when stop_requested() turns true."""
-    result = Diagnosis(robot, observations)
+                          stop_requested: Callable[[], bool] = lambda: False,
+                          pose_covariance: np.ndarray | None = None) -> Diagnosis:
+    """Screen every hypothesis, refit the best, choose what the data supports; the camera
+    pose as uncertain as `pose_covariance` (calibration.pose_covariance) says, or exact.
+    Returns the Diagnosis reached so far (interrupted) when stop_requested() turns true."""
+    result = Diagnosis(robot, observations, pose_covariance=pose_covariance)
     report = stage or (lambda name, done, total: None)
     try:
         contexts = _states(result)
@@ -383,7 +390,8 @@ def _nominal(result: Diagnosis, solutions: StateSolutions, columns: ColumnSet,
     result.uncorrected = nominal if solutions.given_mm is None else residuals(solutions.given_mm)
     frames = len(observations.frames)
     recordings = np.array([f.recording for f in observations.frames])
-    table = observed_table((f.table_plane for f in observations.frames), mesh.nodes_mm)
+    table = observed_table((f.table_plane for f in observations.frames), mesh.nodes_mm,
+                           nominal.rms())
     basis = build_basis(solutions.predicted_mm, solutions.mesh_columns, mesh.surface_faces,
                         columns, states.of_frame, contexts,
                         tuple(spec.name for spec in robot.cable_specs),
@@ -543,9 +551,9 @@ def _second_within_mesh(result: Diagnosis, solutions: StateSolutions, cache: Sol
     bracket = _mesh_bracket(result, solutions, cache) if scales else None
     if bracket is None or not any(map(bracket.holds, scales)):
         return
-    if leaves_static_beyond(first, static_mm(first.refit.field, result.robot.mesh.node_count),
-                            bracket.surface_rms_mm) or not names_the_mismatch(
-            first, result.relative_nominal_mm, result.noise_floor_mm):
+    limit = max(bracket.surface_rms_mm, NEAR_FLOOR * result.noise_floor_mm)
+    if leaves_static_beyond(first, _static_left_mm(result, first.refit.field), limit) or not (
+            names_the_mismatch(first, result.relative_nominal_mm, result.noise_floor_mm)):
         return  # the first alone would be a partial fit: the pair is judged as it stands
     result.within_mesh.append(
         ", ".join(f.candidate.hypotheses[-1].label for f in alike) + " as a second effect "
@@ -1024,6 +1032,7 @@ def _verdict(result: Diagnosis, judge: _Judge, solutions: StateSolutions,
     before, after = nominal.rms(), final.rms()
     node_count = result.robot.mesh.node_count
     static_after = static_mm(final, node_count)
+    static_left = _static_left_mm(result, final)
     static_limit = _static_limit(result, solutions, cache)
     relative_before = result.relative_nominal_mm
     last = result.selected[-1] if result.selected else None
@@ -1032,7 +1041,7 @@ def _verdict(result: Diagnosis, judge: _Judge, solutions: StateSolutions,
                       else relative_before)
     structured = _structured(after, relative_after, floor)
     fitted = result.selected
-    static_beyond = last is not None and leaves_static_beyond(last, static_after, static_limit)
+    static_beyond = last is not None and leaves_static_beyond(last, static_left, static_limit)
     relative_named = last is not None and names_the_mismatch(last, relative_before, floor)
     partial = last is not None and (static_beyond or not relative_named)
     if partial and last.screened.channel == "clouds":
@@ -1116,6 +1125,8 @@ def _verdict(result: Diagnosis, judge: _Judge, solutions: StateSolutions,
         # the residual that stays the same in every frame (each node's mean), with the
         # selected effects, and the most a named effect may leave (_static_limit)
         "static_final_mm": round(static_after, 3),
+        # ... of it, what the camera pose the calibration allows cannot account for
+        "static_after_pose_mm": round(static_left, 3),
         "static_limit_mm": round(static_limit, 3),
         "static_beyond_limit": bool(static_beyond),
         "unexplained_threshold_mm": UNEXPLAINED_MM,
@@ -1210,17 +1221,38 @@ def _scale_of(hypothesis: Hypothesis, values: np.ndarray) -> float:
 
 
 def _static_limit(result: Diagnosis, solutions: StateSolutions, cache: SolveCache) -> float:
-    """The most static residual (static_mm, mm) the selected effects may leave and be named:
+    """The most static residual (static_mm, mm; after the camera pose's correction,
+    _static_left_mm) the selected effects may leave and be named:
     the mesh's own error, the RMS distance between the two quadratic elements on the robot's
     mesh (solves.element_bracket, one more solve when an effect is selected; 1.29 mm on the
-    coarse Diamond), or UNEXPLAINED_MM without it. An effect that explains what changes
+    coarse Diamond), or UNEXPLAINED_MM without it; and at least NEAR_FLOOR times the noise
+    floor, as what changes across frames may leave. An effect that explains what changes
     across frames but leaves the shape they share further off than the mesh could is a
     partial fit of something else: against the converged body a hidden 40 g mass on the north
     elbow fits as a north arm 0.80 as stiff, to 1.18-1.22 times the noise floor of the change
     across frames, and leaves 1.39-1.41 mm static (the library's effects there leave
-    0.21-0.47 mm; the clean recording, nothing fitted, 1.08 mm)."""
+    0.21-0.47 mm; the clean recording, nothing fitted, 1.08 mm). The bracket measures
+    locking: on a mesh that does not lock its two elements agree within hundredths of a
+    millimetre (a finger's 0.06 mm, a trunk's 0.005) where the mesh is a tenth of a
+    millimetre from the body, and a cable's slack fitted right leaves 0.09 mm there."""
     bracket = _mesh_bracket(result, solutions, cache) if result.selected else None
-    return UNEXPLAINED_MM if bracket is None else bracket.surface_rms_mm
+    mesh = UNEXPLAINED_MM if bracket is None else bracket.surface_rms_mm
+    return max(mesh, NEAR_FLOOR * result.noise_floor_mm)
+
+
+def _static_left_mm(result: Diagnosis, field: Field) -> float:
+    """The residual that stays the same in every frame (static_mm) that a fit leaves and the
+    camera pose cannot account for: after the pose's correction within what the
+    calibration's markers allow (residuals.static_after_pose_mm; none for a pose given
+    without markers). A finger calibrated from nine markers is 1.1 degrees off its camera's
+    true pose, which leaves 0.26 mm static beside a cable's slack fitted right, where P2 and
+    P2-P0 on its mesh agree within 0.06 mm; the pose's correction leaves 0.09 mm."""
+    mesh = result.robot.mesh
+    count = mesh.node_count
+    if result.pose_covariance is None:
+        return static_mm(field, count)
+    return static_after_pose_mm(field, count, mesh.nodes_mm[:count],
+                                mesh.vertex_normals[:count], result.pose_covariance)
 
 
 def _mesh_bracket(result: Diagnosis, solutions: StateSolutions, cache: SolveCache

@@ -228,7 +228,7 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
                          f"{evidence['heldout_relative_final_mm']:.2f} mm, noise floor "
                          f"{diagnosis.noise_floor_mm:.2f} mm"
                          + (f"; what stays the same in every frame: "
-                            f"{evidence['static_final_mm']:.2f} mm left, more than the "
+                            f"{_static_left(evidence)} left, more than the "
                             f"{evidence['static_limit_mm']:.2f} mm this mesh's own error "
                             "explains" if evidence["static_beyond_limit"] else "")
                          + "): physics outside the library?"
@@ -280,6 +280,14 @@ def mesh_rest_line(diagnosis: Diagnosis) -> str:
             f"across frames, {bracket.static_mm:.2f} mm static{unsolved}): the mesh cannot "
             "resolve the body there and is the likely cause of the rest (a finer mesh would "
             "tell)")
+
+
+def _static_left(evidence: dict) -> str:
+    """The static residual a fit leaves, and what the camera pose cannot account for of it
+    where the calibration's markers let the pose move (pipeline._static_left_mm)."""
+    final, left = evidence["static_final_mm"], evidence["static_after_pose_mm"]
+    return (f"{final:.2f} mm" if left == final else
+            f"{final:.2f} mm ({left:.2f} mm beyond the camera pose its calibration allows)")
 
 
 def static_beyond_line(diagnosis: Diagnosis) -> str:

@@ -19,12 +19,16 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
+from softforce_cli.calibration.rigid import rigid_motion_basis
 from softforce_cli.model.mesh import vertex_normals
 
 # Points further than this from the predicted surface are not its evidence: stray points
 # (segmentation leftovers, the table's edge) or a patch of the robot the model misses
 # entirely. 3x the largest effect of interest.
 MAX_ASSOCIATION_MM = 15.0
+# A camera pose is corrected within this many standard deviations (a Mahalanobis radius) of
+# its calibration's covariance: sqrt of chi^2's 95% quantile with 6 degrees of freedom.
+POSE_RADIUS = 3.55
 
 
 def surface_normals(positions_mm: np.ndarray, surface_faces: np.ndarray) -> np.ndarray:
@@ -152,6 +156,47 @@ def static_mm(field: Field, node_count: int) -> float:
     node's mean residual (node_systematic_mm), weighted by their points (mm)."""
     mean, weight = node_systematic_mm(field, node_count)
     return node_rms(mean, weight, weight > 0)
+
+
+def static_after_pose_mm(field: Field, node_count: int, nodes_mm: np.ndarray,
+                         normals: np.ndarray, pose_covariance: np.ndarray) -> float:
+    """static_mm (mm) after the correction of the camera pose that removes the most of it
+    within POSE_RADIUS standard deviations of the pose's covariance (6, 6) (dtheta rad, dt
+    mm: calibration.pose_covariance): what a calibration as uncertain as its markers leave it
+    cannot account for. nodes_mm (n, 3) and their unit outward normals (n, 3), the first
+    node_count of the mesh's. The correction moves a node along its normal by
+    n . (dtheta x p + dt); it is a trust-region least-squares step in the pose's whitened
+    coordinates (a pose known exactly along a direction is not moved along it)."""
+    mean, weight = node_systematic_mm(field, node_count)
+    seen = weight > 0
+    if not seen.any():
+        return 0.0
+    motions = rigid_motion_basis(nodes_mm[seen], np.zeros(3)).reshape(-1, 3, 6)
+    along_normal = np.einsum("mk,mkj->mj", normals[seen], motions)
+    spread, directions = np.linalg.eigh(pose_covariance)
+    whitened = along_normal @ (directions * np.sqrt(np.clip(spread, 0.0, None)))
+    share = weight[seen] / weight[seen].sum()
+    normal = whitened.T @ (share[:, None] * whitened)
+    pulled = whitened.T @ (share * mean[seen])
+    step = _trust_region_step(normal, pulled, POSE_RADIUS)
+    return node_rms(mean[seen] - whitened @ step, weight[seen], np.ones(int(seen.sum()), bool))
+
+
+def _trust_region_step(normal: np.ndarray, gradient: np.ndarray, radius: float) -> np.ndarray:
+    """argmin |A z - b|^2 over |z| <= radius, given A^T A (k, k) and A^T b (k,): the least
+    squares step (least norm), or (A^T A + lam I)^-1 A^T b with |z| = radius."""
+    free = np.linalg.lstsq(normal, gradient, rcond=None)[0]
+    if np.linalg.norm(free) <= radius:
+        return free
+    eye = np.eye(len(normal))
+    low, high = 0.0, float(np.linalg.norm(gradient)) / radius
+    for _ in range(100):  # |z(lam)| falls with lam; |z(high)| <= |A^T b| / high = radius
+        middle = 0.5 * (low + high)
+        if np.linalg.norm(np.linalg.solve(normal + middle * eye, gradient)) > radius:
+            low = middle
+        else:
+            high = middle
+    return np.linalg.solve(normal + high * eye, gradient)
 
 
 def node_rms(mean_mm: np.ndarray, weight: np.ndarray, mask: np.ndarray) -> float:

@@ -8,6 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from softforce_cli.calibration.pose_covariance import calibration_pose_covariance
 from softforce_cli.calibration.result import read_calibration
 from softforce_cli.diagnosis.figures import save_residual_map, save_signature_plot
 from softforce_cli.diagnosis.observations import DiagnosisError, observe_recordings
@@ -93,7 +94,8 @@ def run_diagnosis(inputs: DiagnoseInputs, stage: Stage,
         diagnosis = Partial(robot, observations, interrupted=True, stage="observations")
     else:
         diagnosis = diagnose_observations(robot, observations, SolveCache(inputs.cache), stage,
-                                          stop_requested)
+                                          stop_requested,
+                                          calibration_pose_covariance(calibration))
         if given.effects and diagnosis.verdict is not None:
             diagnosis.evidence["robot_file_effects_left_out"] = [e.label for e in given.effects]
     write_outputs(inputs, diagnosis, stage)

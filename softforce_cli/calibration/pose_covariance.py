@@ -1,0 +1,53 @@
+"""How well a calibration's markers pin the camera pose down: the covariance of a small rigid
+correction of the robot in the camera's view, from the markers' scatter about the fit.
+
+A correction (dtheta, dt) moves a robot point p by dtheta x p + dt (robot frame, rad and
+mm). The calibration fits the pose and the taut cables' tensions to the markers (Algorithm
+1); at its fit, linear least squares gives the parameters' covariance sigma^2 (J^T J)^-1,
+J = [the (3 n, 6) motions of the markers under the six (rigid.rigid_motion_basis about the
+robot's origin), the markers' compliance to the taut cables' tensions (W_ea's columns)],
+sigma^2 the used markers' sum of squared residuals over their degrees of freedom. The pose's
+block of it counts the tensions' trade with the pose (a pull that bends an arm beside a turn
+of the camera). A calibration file written before the covariance was (it has no
+`pose_covariance`) gives the rigid block alone, without the tensions: a lower bound.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from softforce_cli.calibration.result import CalibrationResult
+from softforce_cli.calibration.rigid import rigid_motion_basis
+
+# Fewer used markers than this do not fix a pose with degrees of freedom to spare.
+MIN_MARKERS = 4
+
+
+def pose_covariance(markers_mm: np.ndarray, residuals_mm: np.ndarray,
+                    input_columns: np.ndarray) -> np.ndarray | None:
+    """(6, 6) covariance of (dtheta rad, dt mm) from the used markers' model positions
+    (n, 3) mm (robot frame), their residuals (n, 3) mm and the markers' motion (3 n, k) per
+    unit of each input fitted with the pose (mm/N: the taut cables' W_ea columns; k = 0 for
+    none); None with fewer than MIN_MARKERS markers or no degree of freedom left."""
+    markers = np.asarray(markers_mm, dtype=float).reshape(-1, 3)
+    residuals = np.asarray(residuals_mm, dtype=float).reshape(-1, 3)
+    jacobian = np.hstack([rigid_motion_basis(markers, np.zeros(3)),
+                          np.asarray(input_columns, dtype=float).reshape(3 * len(markers), -1)])
+    freedom = 3 * len(markers) - np.linalg.matrix_rank(jacobian)
+    if len(markers) < MIN_MARKERS or freedom <= 0:
+        return None
+    variance = float(np.sum(residuals**2)) / freedom
+    return variance * np.linalg.pinv(jacobian.T @ jacobian)[:6, :6]
+
+
+def calibration_pose_covariance(calibration: CalibrationResult) -> np.ndarray | None:
+    """A calibration's pose covariance: the one it was written with, else the rigid block of
+    its used markers (pose_covariance without inputs: a lower bound); None for a pose given
+    without markers (a pose-only file, the truth's camera of a simulated recording)."""
+    if calibration.pose_covariance is not None:
+        return calibration.pose_covariance
+    used = [m for m in calibration.markers if m.used]
+    if not used:
+        return None
+    return pose_covariance(np.array([m.model_robot_mm for m in used]),
+                           np.array([m.residual_mm for m in used]), np.zeros((3 * len(used), 0)))
