@@ -83,12 +83,13 @@ class Observations:
 
 def observe_frame(frame: RgbdFrame, robot: Robot, robot_from_camera: RigidTransform,
                   robot_rgb: np.ndarray, rng: np.random.Generator,
-                  table_plane: tuple[np.ndarray, float] | None,
                   settings: VisionSettings = VisionSettings()) -> tuple[np.ndarray, tuple | None]:
     """Robot points (p, 3) mm in the robot frame of one frame, and the table plane found.
 
     The crop box is the rest shape's bounds grown by the vision margin; the features passed to
-    the vision stage only serve its matching step, which diagnosis does not use.
+    the vision stage only serve its matching step, which diagnosis does not use. The table is
+    fitted in every frame (sensing reuses the first frame's plane, for speed): one frame's
+    plane tilts by its noise, and diagnosis.background averages them.
     """
     nodes = robot.mesh.nodes_mm
     bounds = np.array([nodes.min(axis=0), nodes.max(axis=0)])
@@ -96,7 +97,7 @@ def observe_frame(frame: RgbdFrame, robot: Robot, robot_from_camera: RigidTransf
     clamped = nodes[robot.fixed_nodes]
     result = process_frame(frame.depth_mm, frame.color, frame.intrinsics, robot_from_camera,
                            bounds, nodes[features], robot.feature_normals, robot_rgb, settings,
-                           np.r_[clamped.min(axis=0), clamped.max(axis=0)], table_plane)
+                           np.r_[clamped.min(axis=0), clamped.max(axis=0)])
     points = result.segmentation.robot.points_mm
     if len(points) > MAX_POINTS_PER_FRAME:
         points = points[np.sort(rng.choice(len(points), MAX_POINTS_PER_FRAME, replace=False))]
@@ -128,7 +129,6 @@ def observe_recordings(
     done = 0
     for number, path in enumerate(paths):
         robot_rgb = None
-        table = None
         first_ns = None
         last_s = 0.0
         for index, frame in _frames_in(iter_frames(Path(path)), frame_range):
@@ -140,7 +140,7 @@ def observe_recordings(
                 robot_rgb = learned_robot_colour(frame, robot_from_camera, robot.mesh.nodes_mm,
                                                  robot.mesh.surface_nodes, vision)
             first_ns = frame.time_ns if first_ns is None else first_ns
-            points, table = observe_frame(frame, robot, robot_from_camera, robot_rgb, rng, table,
+            points, table = observe_frame(frame, robot, robot_from_camera, robot_rgb, rng,
                                           vision)
             done += 1
             if progress is not None:
