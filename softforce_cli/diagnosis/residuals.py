@@ -163,8 +163,9 @@ def static_after_pose_mm(field: Field, node_count: int, nodes_mm: np.ndarray,
     """static_mm (mm) after the correction of the camera pose that removes the most of it
     within POSE_RADIUS standard deviations of the pose's covariance (6, 6) (dtheta rad, dt
     mm: calibration.pose_covariance): what a calibration as uncertain as its markers leave it
-    cannot account for. nodes_mm (n, 3) and their unit outward normals (n, 3), the first
-    node_count of the mesh's. The correction moves a node along its normal by
+    cannot account for. nodes_mm (n, 3): where each of the node_count nodes is (the shapes
+    of the frames that see it: pipeline._seen_shape), and normals (n, 3) its unit outward
+    normal there. The correction moves a node along its normal by
     n . (dtheta x p + dt); it is a trust-region least-squares step in the pose's whitened
     coordinates (a pose known exactly along a direction is not moved along it)."""
     mean, weight = node_systematic_mm(field, node_count)
