@@ -38,7 +38,6 @@ from softforce_cli.diagnosis.residuals import (
     static_mm,
 )
 from softforce_cli.diagnosis.selection import (
-    NEAR_FLOOR,
     SAME_FIT_SHARE,
     UNEXPLAINED_MM,
     clear_improvement,
@@ -552,9 +551,9 @@ def _second_within_mesh(result: Diagnosis, solutions: StateSolutions, cache: Sol
     bracket = _mesh_bracket(result, solutions, cache) if scales else None
     if bracket is None or not any(map(bracket.holds, scales)):
         return
-    limit = max(bracket.surface_rms_mm, NEAR_FLOOR * result.noise_floor_mm)
-    if leaves_static_beyond(first, _static_left_mm(result, first.refit.field), limit) or not (
-            names_the_mismatch(first, result.relative_nominal_mm, result.noise_floor_mm)):
+    if leaves_static_beyond(first, _static_left_mm(result, first.refit.field),
+                            bracket.surface_rms_mm) or not names_the_mismatch(
+            first, result.relative_nominal_mm, result.noise_floor_mm):
         return  # the first alone would be a partial fit: the pair is judged as it stands
     result.within_mesh.append(
         ", ".join(f.candidate.hypotheses[-1].label for f in alike) + " as a second effect "
@@ -1226,8 +1225,7 @@ def _static_limit(result: Diagnosis, solutions: StateSolutions, cache: SolveCach
     _static_left_mm) the selected effects may leave and be named:
     the mesh's own error, the RMS distance between the two quadratic elements on the robot's
     mesh (solves.element_bracket, one more solve when an effect is selected; 1.29 mm on the
-    coarse Diamond), or UNEXPLAINED_MM without it; and at least NEAR_FLOOR times the noise
-    floor, as what changes across frames may leave. An effect that explains what changes
+    coarse Diamond), or UNEXPLAINED_MM without it. An effect that explains what changes
     across frames but leaves the shape they share further off than the mesh could is a
     partial fit of something else: against the converged body a hidden 40 g mass on the north
     elbow fits as a north arm 0.80 as stiff, to 1.18-1.22 times the noise floor of the change
@@ -1235,10 +1233,12 @@ def _static_limit(result: Diagnosis, solutions: StateSolutions, cache: SolveCach
     0.21-0.47 mm; the clean recording, nothing fitted, 1.08 mm). The bracket measures
     locking: on a mesh that does not lock its two elements agree within hundredths of a
     millimetre (a finger's 0.06 mm, a trunk's 0.005) where the mesh is a tenth of a
-    millimetre from the body, and a cable's slack fitted right leaves 0.09 mm there."""
+    millimetre from the body. A limit of 1.25 times the noise floor there named a cable's
+    slack fitted right on both (0.09 mm left after the camera's pose), and a trunk's clean
+    recording, given its camera's true pose, as one arm 0.75 as stiff (the mesh's error,
+    0.065 mm left): a wrong name where there was none, so not kept."""
     bracket = _mesh_bracket(result, solutions, cache) if result.selected else None
-    mesh = UNEXPLAINED_MM if bracket is None else bracket.surface_rms_mm
-    return max(mesh, NEAR_FLOOR * result.noise_floor_mm)
+    return UNEXPLAINED_MM if bracket is None else bracket.surface_rms_mm
 
 
 def _static_left_mm(result: Diagnosis, field: Field) -> float:
