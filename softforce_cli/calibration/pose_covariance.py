@@ -32,7 +32,7 @@ def pose_covariance(markers_mm: np.ndarray, residuals_mm: np.ndarray,
     markers = np.asarray(markers_mm, dtype=float).reshape(-1, 3)
     residuals = np.asarray(residuals_mm, dtype=float).reshape(-1, 3)
     jacobian = np.hstack([rigid_motion_basis(markers, np.zeros(3)),
-                          np.asarray(input_columns, dtype=float).reshape(3 * len(markers), -1)])
+                          np.asarray(input_columns, dtype=float)])
     freedom = 3 * len(markers) - np.linalg.matrix_rank(jacobian)
     if len(markers) < MIN_MARKERS or freedom <= 0:
         return None

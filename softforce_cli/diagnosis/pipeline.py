@@ -36,6 +36,7 @@ from softforce_cli.diagnosis.residuals import (
     node_systematic_mm,
     static_after_pose_mm,
     static_mm,
+    surface_normals,
 )
 from softforce_cli.diagnosis.selection import (
     SAME_FIT_SHARE,
@@ -64,7 +65,6 @@ from softforce_cli.errors import SolverError
 from softforce_cli.fem.processes import map_on_cores
 from softforce_cli.fem.threads import one_blas_thread
 from softforce_cli.model.effects import FrameContext, frame_contexts
-from softforce_cli.model.mesh import vertex_normals
 from softforce_cli.model.regions import node_regions
 from softforce_cli.model.robot import Robot
 
@@ -1263,7 +1263,7 @@ def _seen_shape(result: Diagnosis, field: Field) -> tuple[np.ndarray, np.ndarray
     mesh = result.robot.mesh
     count = mesh.node_count
     predicted = result.predicted_mm
-    normals = np.stack([vertex_normals(shape, mesh.surface_faces) for shape in predicted])
+    normals = np.stack([surface_normals(shape, mesh.surface_faces) for shape in predicted])
     state = result.states.of_frame[field.frame]
     weight = np.bincount(field.node, weights=field.weight, minlength=count)
     seen = weight > 0

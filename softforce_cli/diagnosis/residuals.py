@@ -180,7 +180,7 @@ def static_after_pose_mm(field: Field, node_count: int, nodes_mm: np.ndarray,
     normal = whitened.T @ (share[:, None] * whitened)
     pulled = whitened.T @ (share * mean[seen])
     step = _trust_region_step(normal, pulled, POSE_RADIUS)
-    return node_rms(mean[seen] - whitened @ step, weight[seen], np.ones(int(seen.sum()), bool))
+    return weighted_rms(mean[seen] - whitened @ step, weight[seen])
 
 
 def _trust_region_step(normal: np.ndarray, gradient: np.ndarray, radius: float) -> np.ndarray:
