@@ -173,9 +173,12 @@ def _pose_covariance(value: Any) -> np.ndarray | None:
     """The document's pose_covariance (6 x 6 numbers, symmetric) or None where absent."""
     if value is None:
         return None
-    covariance = np.array(value, dtype=float)
+    try:
+        covariance = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        covariance = np.zeros(0)
     if covariance.shape != (6, 6) or not np.allclose(covariance, covariance.T):
-        raise ValueError("pose_covariance must be a symmetric 6x6 matrix")
+        raise ValueError("pose_covariance must be a symmetric 6x6 matrix of numbers")
     return covariance
 
 
