@@ -402,6 +402,8 @@ def _beam_states(tmp_path) -> tuple[Robot, ExactModel, list]:
     return robot, ExactModel(solutions, states, contexts, [np.zeros((0, 3))] * 3, None), nominal
 
 
+# the prediction of a Refit made up in a test (no states solved)
+UNSOLVED = refit.Prediction(np.zeros((0, 0, 3)), np.zeros(0, np.int64), 0)
 SOFTER_BEAM = Candidate((Hypothesis("stiffness_scale", None, ("scale",), np.array([1.0]),
                                     np.array([0.2]), np.array([5.0])),))
 
@@ -430,6 +432,111 @@ def test_the_refit_solves_its_states_on_the_cores_as_in_turn(tmp_path, monkeypat
     monkeypatch.setattr(refit, "solve_equilibrium", unreachable)
     with pytest.raises(refit.NoEquilibriumError, match=r"inputs \(3, 2\)"):
         exact.predict(softer, np.array([0.8]))
+
+
+CREEP = Candidate((Hypothesis("viscoelastic_creep", None, ("relaxation", "time_constant_s"),
+                              np.array([0.0, 1.0]), np.array([0.0, 0.05]),
+                              np.array([0.9, 1000.0])),))
+
+
+def test_followed_frames_are_the_states_solves_where_the_body_has_one_branch(tmp_path):
+    """ExactModel.followed solves the frames in turn, each from the one before (a second
+    recording from its state's nominal equilibrium); where the body has one equilibrium
+    per input and hold, that is predict's solve of each (state, hold) group: a creeping P2
+    beam, two holds of a pull and a second recording, to 1e-3 mm."""
+    robot = load_robot(write_beam(tmp_path))
+    pulls = np.array([[1.0, 0.5], [1.0, 0.5], [3.0, 2.0], [3.0, 2.0], [3.0, 2.0]])
+    second = np.array([[3.0, 2.0], [2.0, 4.0], [2.0, 4.0]])
+    contexts = (tuple(frame_contexts(0.5 * np.arange(len(pulls)), pulls))
+                + tuple(frame_contexts(0.5 * np.arange(len(second)), second)))
+    states = group_states(contexts)
+    nominal = [solve_equilibrium(robot.fe_model, robot.cable_inputs(a))
+               for a in states.actuation]
+    columns = column_set(robot)
+    solutions = StateSolutions(
+        robot, "p2", states.actuation, np.stack([e.positions_mm for e in nominal]),
+        np.stack([e.cable_tensions_n for e in nominal]),
+        np.zeros((states.count, len(columns.names), robot.fe_model.node_count, 3)), None,
+        columns)
+    recordings = np.repeat([0, 1], [len(pulls), len(second)])
+    exact = ExactModel(solutions, states, contexts, [np.zeros((0, 3))] * len(contexts), None,
+                       recordings)
+    values = np.array([0.4, 0.5])
+    grouped = exact.predict(CREEP, values)
+    followed = exact.followed(CREEP, values)
+    assert followed.followed and not grouped.followed
+    np.testing.assert_array_equal(followed.of_frame, np.arange(len(contexts)))
+    np.testing.assert_allclose(followed.positions_mm,
+                               grouped.positions_mm[grouped.of_frame], atol=1e-3)
+    # the body creeps within the hold, so each frame of it is its own equilibrium
+    assert np.abs(followed.positions_mm[4] - followed.positions_mm[2]).max() > 0.2
+
+
+def test_a_followed_prediction_replaces_an_evaluation_only_holding_more_points_better(
+        monkeypatch):
+    """refit._followed_if_better: a creeping model followed past a fold is taken only where
+    it holds more of the camera's points than the evaluation it would replace and fits them
+    better (a tipped model can fit the points it holds closer than a standing one fits a
+    standing body: docs/diagnosis.md); never for a candidate without creep, nor where the
+    frames cannot be followed."""
+    def field(points: float, residual_mm: float) -> Field:
+        return Field(np.zeros(2, np.int64), np.arange(2), np.full(2, residual_mm),
+                     np.full(2, points / 2))
+
+    reference = field(1000, 2.0)
+
+    def taken(points: float, residual_mm: float, candidate: Candidate = CREEP,
+              reachable: bool = True) -> bool:
+        prediction = refit.Prediction(np.zeros((1, 2, 3)), np.zeros(1, np.int64), 1,
+                                      followed=True)
+
+        def followed(*_):
+            if not reachable:
+                raise SolverError("no equilibrium")
+            return prediction
+
+        exact = SimpleNamespace(followed=followed,
+                                field=lambda _: field(points, residual_mm))
+        return refit._followed_if_better(
+            exact, candidate, np.array([0.5, 0.5]), reference, refit._objective(
+                reference, False), lambda f, _: refit._objective(f, False)) is prediction
+
+    assert taken(1100, 1.0)
+    assert not taken(900, 1.0)  # fits closer, but holds fewer points: the body stands
+    assert not taken(1100, 2.5)  # holds more, but fits worse
+    assert not taken(1100, 1.0, SOFTER_BEAM)  # no creep: the body has no history to follow
+    assert not taken(1100, 1.0, reachable=False)
+
+
+@pytest.mark.parametrize(("followed", "standing", "kept"), [
+    ((True, 0.48), (True, 2.49), "followed"),  # creep_0.5 seed 1: the body tipped over
+    ((False, 3.04), (True, 2.50), "standing"),  # seed 2: the followed fit ended far off
+    ((True, 2.60), (True, 2.50), "standing"),  # accepted, but generalising worse
+])
+def test_a_followed_fit_is_kept_only_accepted_and_generalising_better(monkeypatch, followed,
+                                                                      standing, kept):
+    """_Judge.final: a refit that followed the body past a fold is one of two starts; the
+    standing branch's fit (refit without following) is judged beside it, and the followed
+    one kept only when it is accepted and its held-out error is the lower."""
+    tipped = refit.Prediction(np.zeros((1, 2, 3)), np.zeros(1, np.int64), 1, followed=True)
+    calls = []
+
+    def refitted(exact, candidate, values, relative, half_widths, stop, near, follow=True):
+        calls.append(follow)
+        return Refit(candidate, values, None, None, tipped if follow else UNSOLVED, 1, values)
+
+    def judged(screened, fitted, baseline):
+        accepted, after = followed if fitted.prediction.followed else standing
+        return SimpleNamespace(refit=fitted, accepted=accepted,
+                               heldout=SimpleNamespace(rms_after_mm=after))
+
+    monkeypatch.setattr(pipeline, "refit", refitted)
+    judge = SimpleNamespace(exact=None, n_eff=3.0, frames=20, stop_requested=lambda: False,
+                            _judged=judged)
+    screened = SimpleNamespace(candidate=CREEP, values=np.array([0.36, 0.19]), relative=True)
+    final = pipeline._Judge.final(judge, screened)
+    assert calls == [True, False]
+    assert final.refit.prediction.followed is (kept == "followed")
 
 
 def test_a_prediction_near_an_earlier_one_starts_from_its_equilibria(tmp_path, monkeypatch):
@@ -612,7 +719,7 @@ def test_a_named_effect_leaves_no_more_static_residual_than_the_mesh_error(
     screened = Screened(screened.candidate, screened.values, screened.heldout, True,
                         screened.ci95, None, channel)
     stopped = (SolverError("no equilibrium at inputs (6, 6, 6, 6)"),) if unreached else ()
-    fitted = Refit(screened.candidate, screened.values, None, None, None, 18, screened.values,
+    fitted = Refit(screened.candidate, screened.values, None, None, UNSOLVED, 18, screened.values,
                    stopped)
     final = Final(screened, fitted, screened.heldout, screened.ci95, True, None,
                   screened.heldout)
@@ -883,7 +990,7 @@ def test_a_heavier_or_softer_body_within_the_mesh_error_is_not_named(monkeypatch
                                 np.ones(len(free)))
         candidate = Candidate((hypothesis,))
         screened = Screened(candidate, np.array(values), held, False, np.array(ci95), None)
-        fitted = Refit(candidate, np.array(values), None, None, None, 0, np.array(values))
+        fitted = Refit(candidate, np.array(values), None, None, UNSOLVED, 0, np.array(values))
         return Final(screened, fitted, held, np.array(ci95), True, None)
 
     def named(*finals: Final, systematic_mm: float = 1.08) -> bool:
@@ -1018,7 +1125,7 @@ def test_the_cameras_are_compared_again_with_the_mesh_allowance(monkeypatch, sam
             if len(hypotheses) > 1:
                 allowances.append(hypotheses[1])
             figure = (pair_mm if len(hypotheses) > 1 else alone_mm)[name]
-            fitted = Refit(screened.candidate, screened.values, None, None, None, 0,
+            fitted = Refit(screened.candidate, screened.values, None, None, UNSOLVED, 0,
                            screened.values)
             return Final(screened, fitted, held(figure), None, True, None)
 
@@ -1066,7 +1173,7 @@ def test_a_static_effect_is_reported_with_the_mesh_allowance(monkeypatch, sample
         def final(self, screened, near=None):
             refitted.append(screened.candidate)
             values = np.array([0.18, 0.98])
-            fitted = Refit(screened.candidate, values, None, None, None, 7, values)
+            fitted = Refit(screened.candidate, values, None, None, UNSOLVED, 7, values)
             return Final(screened, fitted, held(pair_mm), np.array([[0.16, 0.2], [0.97, 0.99]]),
                          True, None)
 
@@ -1077,7 +1184,7 @@ def test_a_static_effect_is_reported_with_the_mesh_allowance(monkeypatch, sample
     candidate = Candidate((hypothesis,))
     alone = Final(Screened(candidate, np.full(1, 0.246), held(0.327), relative,
                            np.array([[0.24, 0.25]]), None),
-                  Refit(candidate, np.full(1, 0.246), None, None, None, 0, np.full(1, 0.246)),
+                  Refit(candidate, np.full(1, 0.246), None, None, UNSOLVED, 0, np.full(1, 0.246)),
                   held(0.327), np.array([[0.24, 0.25]]), True, None)
     result = Diagnosis(sample_robot, None)
     result.selected = result.finals = [alone]

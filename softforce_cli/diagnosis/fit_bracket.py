@@ -111,7 +111,8 @@ def fit_bracket(exact: ExactModel, fitted: Refit) -> FitBracket | None:
         candidate = Candidate(tuple(h for h, k in zip(candidate.hypotheses, kept, strict=True)
                                     if k))
         values = np.concatenate([v for v, k in zip(parts, kept, strict=True) if k])
-        prediction = exact.predict(candidate, values)
+        solve = exact.followed if prediction.followed else exact.predict
+        prediction = solve(candidate, values)
     return _bracket(exact, exact.other_element(candidate, values, prediction), prediction,
                     field)
 

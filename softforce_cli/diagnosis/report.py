@@ -120,6 +120,9 @@ def effect_entry(item: Final | Screened, floor_mm: float, selected: bool,
             # values the exact model could not follow, after which the refit pulled back
             "no_equilibrium": ([str(e) for e in item.refit.unreached]
                                if isinstance(item, Final) else []),
+            # its fit solved the frames in turn, each from the one before, as the body moves
+            # (a creeping body that tips over: refit.ExactModel.followed)
+            "followed_frames": isinstance(item, Final) and item.refit.prediction.followed,
             "table_misfit_mm": (None if item.table_misfit_mm is None
                                 else round(item.table_misfit_mm, 3)),
             # what it leaves of the residual that changes across frames (a refitted
@@ -255,7 +258,9 @@ def summary_lines(diagnosis: Diagnosis) -> list[str]:
         lines.append(f"this data cannot tell apart: {', '.join(group)} ({group_reason(group)})")
     lines += [unreached_line(final) for final in diagnosis.finals if final.refit.unreached]
     if evidence["jumps_in_holds"]:
-        lines.append(jumps_line(evidence["jumps_in_holds"], len(diagnosis.observations.recordings)))
+        followed = any(final.refit.prediction.followed for final in diagnosis.selected)
+        lines.append(jumps_line(evidence["jumps_in_holds"], len(diagnosis.observations.recordings),
+                                followed))
     if (evidence.get("prediction_element") != evidence.get("element")
             and evidence["rms_given_element_mm"] > 1.5 * evidence["rms_nominal_mm"]):
         lines.append(f"the robot's {evidence['element']} mesh alone leaves "
@@ -359,14 +364,19 @@ def fitted_robot_toml(robot_file: Path, diagnosis: Diagnosis, output_dir: Path) 
     return text.rstrip("\n") + "\n" + header + "\n".join(tables)
 
 
-def jumps_line(jumps: list[dict], recordings: int) -> str:
+def jumps_line(jumps: list[dict], recordings: int, followed: bool = False) -> str:
     """The summary's line for frames whose points jumped with the inputs held
-    (evidence.jumps_in_holds, diagnosis.jumps)."""
+    (evidence.jumps_in_holds, diagnosis.jumps); `followed`: the selected fit solved the
+    frames in turn, as the body moves (refit.ExactModel.followed)."""
     where = "; ".join(
         f"frame {jump['frame']}" + (f" of recording {jump['recording'] + 1}" if recordings > 1
                                     else "")
         + f" ({jump['moved_mm']:.1f} mm, {jump['typical_mm']:.1f} mm in the other holds)"
         for jump in jumps)
+    if followed:
+        return (f"the robot jumps with its inputs held: {where}. The fitted model, solved "
+                "frame by frame from each frame's shape to the next, passes a fold "
+                "(snaps through) and follows the body there")
     return (f"the robot jumps with its inputs held: {where}. It snapped through (passed a "
             "fold), or the robot or the camera moved; the model is solved near its nominal "
             "equilibria and follows no such jump, so what is fitted after it is not to be "

@@ -332,12 +332,13 @@ CONTINUATION_STEPS = (1, 2, 4, 8)
 
 def solve_by_continuation(model: FEModel, controls: tuple[str, ...], target: np.ndarray,
                           solved: list[tuple[np.ndarray, np.ndarray]],
-                          settings: SolverSettings = SolverSettings()) -> Equilibrium:
+                          settings: SolverSettings = SolverSettings(),
+                          step_counts: tuple[int, ...] = CONTINUATION_STEPS) -> Equilibrium:
     """The equilibrium at cable inputs `target` (a,) mm or N, from the nearest of the
     `solved` (inputs (a,), positions (n, 3) mm) pairs (rest when there are none), in 1, 2, 4
-    or 8 equal steps of the inputs until Newton's method reaches every step.
+    or 8 (step_counts) equal steps of the inputs until Newton's method reaches every step.
 
-    Raises the last SolverError when even 8 steps fail.
+    Raises the last SolverError when even the most steps fail.
     """
     target = np.asarray(target, dtype=float)
     if solved:
@@ -345,7 +346,7 @@ def solve_by_continuation(model: FEModel, controls: tuple[str, ...], target: np.
     else:
         origin, positions = np.zeros_like(target), model.rest_nodes_mm
     last_error: SolverError | None = None
-    for steps in CONTINUATION_STEPS:
+    for steps in step_counts:
         try:
             start = positions
             for k in range(1, steps + 1):
