@@ -482,7 +482,6 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
         return _followed_if_better(exact, candidate, at, reference,
                                    objective(reference, reference_at), objective)
 
-    prediction = None
     for backoff in range(BACKOFFS + 1):
         try:
             prediction = exact.predict(candidate, values, near)
@@ -726,7 +725,7 @@ def _followed_if_better(exact: ExactModel, candidate: Candidate, values: np.ndar
     A fit on the distances alone does not tell a tipped model from a standing body: on the
     study's creep_0.3, whose body stands, the model tipped at the screened start (relaxation
     0.511 at 0.79 s) is 2.70 mm RMS from the recording against the nominal model's 4.24, but
-    holds 43,938 of its points against 52,191; on creep_0.5, whose body tips over, 47,279
+    holds 43,938 of its points against 52,191; on creep_0.5, whose body tips over, 47,278
     against 42,785 (docs/diagnosis.md, limits)."""
     if not any(h.name == "viscoelastic_creep" for h in candidate.hypotheses):
         return None
