@@ -277,7 +277,6 @@ class ExactModel:
         recordings = (np.zeros(frames, dtype=int) if self.recordings is None
                       else np.asarray(self.recordings))
         predicted = np.empty((frames, n, 3))
-        solves = 0
         for i in range(frames):
             if i == 0 or recordings[i] != recordings[i - 1]:
                 s = int(self.states.of_frame[i])
@@ -290,8 +289,7 @@ class ExactModel:
                 raise NoEquilibriumError(candidate, values, effective[i]) from error
             last = (effective[i], solution.positions_mm)
             predicted[i] = solution.positions_mm[:n]
-            solves += 1
-        return Prediction(self._seen(predicted, effects), np.arange(frames), solves,
+        return Prediction(self._seen(predicted, effects), np.arange(frames), frames,
                           followed=True)
 
     def _seen(self, predicted_mm: np.ndarray, effects: tuple[Effect, ...]) -> np.ndarray:
@@ -334,8 +332,7 @@ class ExactModel:
             except SolverError:
                 return None
 
-        # followed frames may stand on other branches at equal inputs: each its own
-        leader = _leaders(effective, firsts, creep or prediction.followed, range(len(firsts)))
+        leader = _leaders(effective, firsts, creep, range(len(firsts)))
         leaders = sorted(set(leader))
         solved = dict(zip(leaders, map_on_cores(lambda i: solve(leaders[i]), len(leaders)),
                           strict=True))
