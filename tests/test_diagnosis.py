@@ -5,6 +5,7 @@ a problem with a known answer (held-out selection)."""
 import os
 import tomllib
 from dataclasses import replace
+from functools import partial
 from types import SimpleNamespace
 
 import numpy as np
@@ -506,6 +507,59 @@ def test_a_followed_prediction_replaces_an_evaluation_only_holding_more_points_b
     assert not taken(1100, 2.5)  # holds more, but fits worse
     assert not taken(1100, 1.0, SOFTER_BEAM)  # no creep: the body has no history to follow
     assert not taken(1100, 1.0, reachable=False)
+
+
+@pytest.mark.parametrize("relaxation", [0.4, 0.9])
+def test_a_followed_evaluation_is_differenced_on_the_exact_model(relaxation):
+    """refit.followed_differences: the Jacobian at a followed evaluation, in the step
+    coordinates (creep's time constant in its logarithm), is the exact model's by forward
+    differences, backwards at an upper bound; zero at an entry the moved evaluation does not
+    hold, and a column whose evaluation fails keeps the first-order one. Against the
+    derivatives of a made-up residual r = d - (c1 a^2 + c2 tau) per entry, to the
+    differences' own error (first order in the step)."""
+    c1, c2 = np.array([1.0, -2.0, 0.5, 3.0]), np.array([0.2, 0.1, -0.4, 1.0])
+    observed = np.array([5.0, -1.0, 2.0, 0.5])
+
+    def followed(_, values):
+        return refit.Prediction(np.asarray(values, float).reshape(1, 1, 2), np.zeros(1, int), 3,
+                                followed=True)
+
+    def field(prediction):
+        a, tau = prediction.positions_mm.ravel()
+        entries = np.arange(4)
+        if a != values[0]:  # the moved relaxation's surface lost the last entry's points
+            entries = entries[:3]
+        return Field(np.zeros(len(entries), int), entries,
+                     (observed - c1 * a**2 - c2 * tau)[entries], np.ones(len(entries)))
+
+    def made_up(follow):  # with ExactModel's own followed_each, on the cores
+        exact = SimpleNamespace(followed=follow, field=field)
+        exact.followed_each = partial(ExactModel.followed_each, exact)
+        return exact
+
+    values = np.array([relaxation, 0.6])
+    exact = made_up(followed)
+    coordinates = refit.StepCoordinates.of(CREEP)
+    here = field(followed(CREEP, values))
+    first_order = np.full((4, 2), 7.0)
+    jacobian, solves = refit.followed_differences(
+        exact, CREEP, here, values, coordinates, np.array([True, True]), first_order)
+    assert solves == 6
+    # -dr/d(coordinate): the shift of the surface; d tau / d log tau = tau
+    np.testing.assert_allclose(jacobian[:3, 0], 2.0 * c1[:3] * relaxation, rtol=0.006)
+    assert jacobian[3, 0] == 0.0
+    np.testing.assert_allclose(jacobian[:, 1], c2 * values[1], rtol=0.03)
+
+    def failing(candidate, moved):
+        if moved[1] != values[1]:
+            raise refit.NoEquilibriumError(candidate, moved, np.array([6.0, 0.0]))
+        return followed(candidate, moved)
+
+    jacobian, solves = refit.followed_differences(
+        made_up(failing), CREEP, here, values, coordinates, np.array([True, True]), first_order)
+    assert solves == 3
+    np.testing.assert_array_equal(jacobian[:, 1], 7.0)
+    np.testing.assert_allclose(jacobian[:3, 0], 2.0 * c1[:3] * relaxation, rtol=0.006)
 
 
 @pytest.mark.parametrize(("followed", "standing", "kept"), [

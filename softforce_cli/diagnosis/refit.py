@@ -103,6 +103,11 @@ CURVED_STEP = 0.25
 # inverted, 100 mm lower (the study's creep_0.5).
 FOLLOWED_STEPS = (1, 4)
 FOLLOWED_SETTINGS = dataclasses.replace(SETTINGS, max_iterations=200)
+# A followed fit's Jacobian (its 95% intervals, its held-out refits) is the exact model's, by
+# forward differences of this share of each parameter's range in the step coordinates
+# (creep's relaxation 0.0045 of its 0-0.9, its time constant 5% in the logarithm): the
+# first-order model is the nominal states' tangent, which says little about a tipped body.
+FOLLOWED_DIFFERENCE = 0.005
 
 
 class NoEquilibriumError(SolverError):
@@ -292,6 +297,20 @@ class ExactModel:
         return Prediction(self._seen(predicted, effects), np.arange(frames), frames,
                           followed=True)
 
+    def followed_each(self, candidate: Candidate, values: list[np.ndarray]
+                      ) -> list[Prediction | NoEquilibriumError]:
+        """followed at each of the values (each (k,)), on the machine's cores
+        (fem.processes); a frame not reached gives its NoEquilibriumError in that place."""
+
+        def follow(i: int) -> Prediction | tuple[np.ndarray, np.ndarray]:
+            try:
+                return self.followed(candidate, values[i])
+            except NoEquilibriumError as error:  # its arguments pickle, it does not
+                return error.values, error.inputs
+
+        return [NoEquilibriumError(candidate, *result) if isinstance(result, tuple) else result
+                for result in map_on_cores(follow, len(values))]
+
     def _seen(self, predicted_mm: np.ndarray, effects: tuple[Effect, ...]) -> np.ndarray:
         """(G, n, 3) mm: predicted nodes as the camera effects among `effects` show them."""
         sensor = effects_of_kind(effects, "sensor")
@@ -455,7 +474,8 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
     Each evaluation's solves start near the one before (ExactModel.predict), the first near
     `near` where given. With `follow`, a creeping candidate whose values leave the equilibria
     near the nominal ones is followed frame by frame where that fits the camera's points
-    better (_followed_if_better), and from there on; without, its values are pulled back."""
+    better (_followed_if_better), and from there on; without, its values are pulled back.
+    A followed fit's Jacobian is the exact model's, by differences (followed_differences)."""
     values = np.clip(np.asarray(start, dtype=float), candidate.lower, candidate.upper)
     neutral = np.clip(candidate.start, candidate.lower, candidate.upper)
     coordinates = StepCoordinates.of(candidate)
@@ -531,19 +551,32 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
                          - candidate.shift(neutral, at_nominal), relative)
         secant = np.diag(np.where(camera_parameters, 1.0, gain))
     span = candidate.upper - candidate.lower
+
+    def told(corrected: np.ndarray) -> tuple[np.ndarray, int]:
+        """(E, k) d shift / d value at the evaluation (prediction, field, values) for its
+        Refit, and the FE solves it took: the corrected first-order model's, or at a
+        followed evaluation the exact model's (followed_differences) in the physics'
+        columns."""
+        if not prediction.followed:
+            return corrected / coordinates.per_unit(values), 0
+        differenced, count = followed_differences(exact, candidate, field, values,
+                                                  coordinates, ~camera_parameters, corrected)
+        return differenced / coordinates.per_unit(values), count
+
     for _ in range(REFIT_STEPS):
         if stop_requested():
             break
         corrected = jacobian @ secant
         trial = stepped(field, values, jacobian, corrected)
-        reported = corrected / coordinates.per_unit(values)  # d shift / d value
         # a followed prediction's first-order model is the nominal states' tangent, far from
-        # the tipped body's: its intervals say little, and each step is solved
+        # the tipped body's: it tells no interval, and each step is solved
         untold = (0.0 if prediction.followed
-                  else 0.5 * half_widths(field, reported, values))
+                  else 0.5 * half_widths(field, corrected / coordinates.per_unit(values),
+                                         values))
         if np.all(np.abs(trial - values) <= np.maximum(REFIT_TOLERANCE * span, untold)):
-            return Refit(candidate, trial, field, reported, prediction, solves, values,
-                         tuple(unreached))
+            reported, count = told(corrected)
+            return Refit(candidate, trial, field, reported, prediction, solves + count,
+                         values, tuple(unreached))
         # the first-order model sent a parameter to the end of its range, past where it
         # holds (creep's time constant to 0.05 s, a basin apart from the truth's): the step
         # of the others with it held is solved too, and the best kept
@@ -578,8 +611,9 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
                                coordinates.step(values, trial), relative, camera_parameters)
         values, prediction, field = trial, moved, trial_field
         jacobian = tangent(field, values)
-    return Refit(candidate, values, field, jacobian @ secant / coordinates.per_unit(values),
-                 prediction, solves, values, tuple(unreached))
+    reported, count = told(jacobian @ secant)
+    return Refit(candidate, values, field, reported, prediction, solves + count, values,
+                 tuple(unreached))
 
 
 def _landed_on_bounds(candidate: Candidate, values: np.ndarray, trial: np.ndarray
@@ -735,6 +769,38 @@ def _followed_if_better(exact: ExactModel, candidate: Candidate, values: np.ndar
             or objective(field, values) >= reference_objective):
         return None
     return followed
+
+
+def followed_differences(exact: ExactModel, candidate: Candidate, field: Field,
+                         values: np.ndarray, coordinates: StepCoordinates,
+                         columns: np.ndarray, jacobian: np.ndarray) -> tuple[np.ndarray, int]:
+    """(E, k) `jacobian` (the Jacobian at the followed evaluation `field` at values (k,), in
+    the step coordinates) with the parameters `columns` (k,) bool differenced on the exact
+    model: each moved by FOLLOWED_DIFFERENCE of its range (backwards at its upper bound) and
+    the frames followed again (ExactModel.followed_each). A column is the shift at the
+    entries both evaluations share, zero at the others (the points their surfaces hold
+    differ there); a column whose evaluation fails is kept. Also returns the FE solves."""
+    span = coordinates.step(candidate.lower, candidate.upper)
+    steps = []
+    for i in np.flatnonzero(columns):
+        step = np.zeros(len(values))
+        step[i] = FOLLOWED_DIFFERENCE * span[i]
+        if coordinates.moved(values, step)[i] > candidate.upper[i]:
+            step[i] = -step[i]
+        steps.append(step)
+    predictions = exact.followed_each(candidate, [coordinates.moved(values, step)
+                                                  for step in steps])
+    differenced = jacobian.copy()
+    solves = 0
+    for step, prediction in zip(steps, predictions, strict=True):
+        if isinstance(prediction, SolverError):  # its column stays the first-order model's
+            continue
+        solves += prediction.solves
+        i = int(np.flatnonzero(step)[0])
+        shift, at_field = _exact_shift(field, exact.field(prediction))
+        differenced[:, i] = 0.0
+        differenced[at_field, i] = shift.mean_mm / step[i]
+    return differenced, solves
 
 
 def secant_update(secant: np.ndarray, before: Field, after: Field, jacobian: np.ndarray,
