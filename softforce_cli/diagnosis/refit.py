@@ -552,16 +552,17 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
         secant = np.diag(np.where(camera_parameters, 1.0, gain))
     span = candidate.upper - candidate.lower
 
-    def told(corrected: np.ndarray) -> tuple[np.ndarray, int]:
-        """(E, k) d shift / d value at the evaluation (prediction, field, values) for its
-        Refit, and the FE solves it took: the corrected first-order model's, or at a
-        followed evaluation the exact model's (followed_differences) in the physics'
+    def told(prediction: Prediction, field: Field, at: np.ndarray, corrected: np.ndarray
+             ) -> tuple[np.ndarray, int]:
+        """(E, k) d shift / d value at the evaluation (prediction, field) at `at` for its
+        Refit, and the FE solves it took: the corrected first-order model's `corrected`, or
+        at a followed evaluation the exact model's (followed_differences) in the physics'
         columns."""
         if not prediction.followed:
-            return corrected / coordinates.per_unit(values), 0
-        differenced, count = followed_differences(exact, candidate, field, values,
-                                                  coordinates, ~camera_parameters, corrected)
-        return differenced / coordinates.per_unit(values), count
+            return corrected / coordinates.per_unit(at), 0
+        differenced, count = followed_differences(exact, candidate, field, at, coordinates,
+                                                  ~camera_parameters, corrected)
+        return differenced / coordinates.per_unit(at), count
 
     for _ in range(REFIT_STEPS):
         if stop_requested():
@@ -574,7 +575,7 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
                   else 0.5 * half_widths(field, corrected / coordinates.per_unit(values),
                                          values))
         if np.all(np.abs(trial - values) <= np.maximum(REFIT_TOLERANCE * span, untold)):
-            reported, count = told(corrected)
+            reported, count = told(prediction, field, values, corrected)
             return Refit(candidate, trial, field, reported, prediction, solves + count,
                          values, tuple(unreached))
         # the first-order model sent a parameter to the end of its range, past where it
@@ -611,7 +612,7 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
                                coordinates.step(values, trial), relative, camera_parameters)
         values, prediction, field = trial, moved, trial_field
         jacobian = tangent(field, values)
-    reported, count = told(jacobian @ secant)
+    reported, count = told(prediction, field, values, jacobian @ secant)
     return Refit(candidate, values, field, reported, prediction, solves + count, values,
                  tuple(unreached))
 
