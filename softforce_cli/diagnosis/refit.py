@@ -37,6 +37,7 @@ from softforce_cli.diagnosis.fitting import (
     table_row_weight,
     table_rows,
 )
+from softforce_cli.diagnosis.fold import search_along_the_fold
 from softforce_cli.diagnosis.residuals import Field, measure
 from softforce_cli.diagnosis.solves import SETTINGS, StateSolutions, other_element
 from softforce_cli.diagnosis.states import States
@@ -575,9 +576,10 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
                   else 0.5 * half_widths(field, corrected / coordinates.per_unit(values),
                                          values))
         if np.all(np.abs(trial - values) <= np.maximum(REFIT_TOLERANCE * span, untold)):
-            reported, count = told(prediction, field, values, corrected)
-            return Refit(candidate, trial, field, reported, prediction, solves + count,
-                         values, tuple(unreached))
+            if prediction.followed:
+                break
+            return Refit(candidate, trial, field, corrected / coordinates.per_unit(values),
+                         prediction, solves, values, tuple(unreached))
         # the first-order model sent a parameter to the end of its range, past where it
         # holds (creep's time constant to 0.05 s, a basin apart from the truth's): the step
         # of the others with it held is solved too, and the best kept
@@ -611,6 +613,11 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
         secant = secant_update(secant, field, trial_field, jacobian,
                                coordinates.step(values, trial), relative, camera_parameters)
         values, prediction, field = trial, moved, trial_field
+        jacobian = tangent(field, values)
+    if prediction.followed and not stop_requested() and (found := search_along_the_fold(
+            exact, candidate, values, prediction, objective, stop_requested)) is not None:
+        values, prediction, field, count = found
+        solves += count
         jacobian = tangent(field, values)
     reported, count = told(prediction, field, values, jacobian @ secant)
     return Refit(candidate, values, field, reported, prediction, solves + count, values,
