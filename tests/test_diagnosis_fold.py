@@ -107,12 +107,18 @@ def test_the_search_finds_the_valleys_lowest_point_with_the_share_held():
 
 
 def test_the_search_keeps_the_fit_where_it_has_no_fold_to_search():
-    """None: at the valley's lowest point already, where the model does not tip, and for a
-    candidate without creep's two parameters free."""
+    """The fit itself, its solves counted, at the valley's lowest point already; None
+    where the model does not tip, and for a candidate without creep's two parameters
+    free."""
     start = np.array([0.708, 0.836])
     lowest = made_up_exact(0.836)
-    assert fold.search_along_the_fold(lowest, CREEP, start, lowest.followed(CREEP, start),
-                                      mean_square) is None
+    at_start = lowest.followed(CREEP, start)
+    values, prediction, field, solves = fold.search_along_the_fold(
+        lowest, CREEP, start, at_start, mean_square)
+    np.testing.assert_array_equal(values, start)
+    np.testing.assert_array_equal(prediction.positions_mm, at_start.positions_mm)
+    assert mean_square(field, values) == mean_square(lowest.field(at_start), start)
+    assert solves >= 7 * len(HOLDS)
     standing = made_up_exact(0.5)
     standing_prediction = refit.Prediction(tipping_nodes(None), np.arange(len(HOLDS)), 10,
                                            followed=True)

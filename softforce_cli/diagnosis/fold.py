@@ -97,13 +97,13 @@ def search_along_the_fold(exact: ExactModel, candidate: Candidate, values: np.nd
                           stop_requested: Callable[[], bool] = lambda: False
                           ) -> tuple[np.ndarray, Prediction, Field, int] | None:
     """The lowest point of the fold's valley through the followed fit at values (k,)
-    (`prediction`): (its values, prediction, field, the FE solves the search took), or None
-    where the candidate has no free creep, the model does not tip, or no point of the valley
-    fits better by `objective`. Its other parameters are held. FOLD_POINTS time constants
-    over the valley are followed (ExactModel.followed_each, on the cores), then the
-    midpoints between the best and its neighbours, then the vertex of the parabola through
-    the best three (in the time constant's logarithm), each batch only while no stop is
-    requested."""
+    (`prediction`) by `objective`: (its values, prediction, field, the FE solves the search
+    took), the fit itself where no point of the valley fits better; None where the
+    candidate has no free creep or the model does not tip. Its other parameters are held.
+    FOLD_POINTS time constants over the valley are followed (ExactModel.followed_each, on
+    the cores), then the midpoints between the best and its neighbours, then the vertex of
+    the parabola through the best three (in the time constant's logarithm), each batch only
+    while no stop is requested."""
     indices = creep_indices(candidate)
     if indices is None:
         return None
@@ -160,7 +160,5 @@ def search_along_the_fold(exact: ExactModel, candidate: Candidate, values: np.nd
         if curvature > 0.0:
             on_the_fold([float(np.clip(-slope / (2.0 * curvature), u[0], u[2]))])
     order, k = best()
-    found = tried[order[k]]
-    if found[2] is prediction:
-        return None
-    return found[1], found[2], found[3], solves
+    _, found, followed, field = tried[order[k]]
+    return found, followed, field, solves

@@ -13,7 +13,8 @@ stiffness change is slow), each step kept only when the exact residual falls.
 A creeping body can pass a fold within a hold and tip over, onto a branch of equilibria no
 solve near the nominal ones reaches: there the exact model follows the frames in turn, each
 from the one before, as the body moves (ExactModel.followed), where that holds more of the
-camera's points and fits them better.
+camera's points and fits them better. Such a fit is then searched along the fold's valley
+(diagnosis.fold), which Gauss-Newton steps cross but do not follow.
 """
 
 from __future__ import annotations
@@ -476,7 +477,8 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
     `near` where given. With `follow`, a creeping candidate whose values leave the equilibria
     near the nominal ones is followed frame by frame where that fits the camera's points
     better (_followed_if_better), and from there on; without, its values are pulled back.
-    A followed fit's Jacobian is the exact model's, by differences (followed_differences)."""
+    A followed fit is searched along the fold's valley (fold.search_along_the_fold), and its
+    Jacobian is the exact model's, by differences (followed_differences)."""
     values = np.clip(np.asarray(start, dtype=float), candidate.lower, candidate.upper)
     neutral = np.clip(candidate.start, candidate.lower, candidate.upper)
     coordinates = StepCoordinates.of(candidate)
