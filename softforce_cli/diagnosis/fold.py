@@ -7,11 +7,11 @@ it tips in the frame the body tipped and, in the last frame the body stood, rela
 the share that left it nearest the fold: along a narrow valley of pairs (a, tau) with one
 share at that frame's hold time. On the study's creep_0.5 (seed 2) the pairs (0.4, 0.3 s),
 (0.5, 0.5 s) and (0.708, 0.836 s) all relax the body by 0.32 after its last standing
-frame's 0.5 s, and fit the recording 5-40 times better than pairs off it (docs/diagnosis.md,
-limits). A Gauss-Newton refit crosses the valley well, since it is steep across, but does
-not move along it, since its first-order model is the standing body's: search_along_the_fold
-looks for the valley's lowest point from a followed fit, over the time constants with the
-share held.
+frame's 0.5 s, and fit the recording 7-47 times better than pairs that tip the model a
+frame early or late (docs/diagnosis.md, limits). A Gauss-Newton refit crosses the valley
+well, since it is steep across, but does not move along it, since its first-order model is
+the standing body's: search_along_the_fold looks for the valley's lowest point from a
+followed fit, over the time constants with the share held.
 """
 
 from __future__ import annotations
