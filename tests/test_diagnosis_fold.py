@@ -79,7 +79,8 @@ def made_up_exact(truth_tau: float) -> SimpleNamespace:
         return Field(np.zeros(2, int), np.arange(2), residual, np.ones(2))
 
     exact = SimpleNamespace(contexts=[SimpleNamespace(hold_s=h) for h in HOLDS],
-                            recordings=None, followed=followed, field=field)
+                            recording_of_frame=np.zeros(len(HOLDS), dtype=int),
+                            followed=followed, field=field)
     exact.followed_each = partial(ExactModel.followed_each, exact)
     return exact
 

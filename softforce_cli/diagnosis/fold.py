@@ -108,11 +108,9 @@ def search_along_the_fold(exact: ExactModel, candidate: Candidate, values: np.nd
     if indices is None:
         return None
     a, t = indices
-    frames = len(exact.contexts)
-    hold = last_standing_hold_s(
-        prediction.positions_mm[prediction.of_frame],
-        np.zeros(frames, dtype=int) if exact.recordings is None else exact.recordings,
-        np.array([context.hold_s for context in exact.contexts]))
+    hold = last_standing_hold_s(prediction.positions_mm[prediction.of_frame],
+                                exact.recording_of_frame,
+                                np.array([context.hold_s for context in exact.contexts]))
     if hold is None:
         return None
     share = float(values[a] * -np.expm1(-hold / values[t]))

@@ -281,8 +281,7 @@ class ExactModel:
         effects, physics, effective, _ = self._with_effects(candidate, values)
         controls = tuple(spec.control for spec in robot.cable_specs)
         frames = len(self.contexts)
-        recordings = (np.zeros(frames, dtype=int) if self.recordings is None
-                      else np.asarray(self.recordings))
+        recordings = self.recording_of_frame
         predicted = np.empty((frames, n, 3))
         for i in range(frames):
             if i == 0 or recordings[i] != recordings[i - 1]:
@@ -298,6 +297,13 @@ class ExactModel:
             predicted[i] = solution.positions_mm[:n]
         return Prediction(self._seen(predicted, effects), np.arange(frames), frames,
                           followed=True)
+
+    @property
+    def recording_of_frame(self) -> np.ndarray:
+        """(t,) each frame's recording (all 0 for one)."""
+        if self.recordings is None:
+            return np.zeros(len(self.contexts), dtype=int)
+        return np.asarray(self.recordings)
 
     def followed_each(self, candidate: Candidate, values: list[np.ndarray]
                       ) -> list[Prediction | NoEquilibriumError]:
@@ -572,16 +578,15 @@ def refit(exact: ExactModel, candidate: Candidate, start: np.ndarray, relative: 
             break
         corrected = jacobian @ secant
         trial = stepped(field, values, jacobian, corrected)
+        reported = corrected / coordinates.per_unit(values)  # d shift / d value
         # a followed prediction's first-order model is the nominal states' tangent, far from
         # the tipped body's: it tells no interval, and each step is solved
-        untold = (0.0 if prediction.followed
-                  else 0.5 * half_widths(field, corrected / coordinates.per_unit(values),
-                                         values))
+        untold = 0.0 if prediction.followed else 0.5 * half_widths(field, reported, values)
         if np.all(np.abs(trial - values) <= np.maximum(REFIT_TOLERANCE * span, untold)):
-            if prediction.followed:
+            if prediction.followed:  # on to the fold's search and the exact Jacobian
                 break
-            return Refit(candidate, trial, field, corrected / coordinates.per_unit(values),
-                         prediction, solves, values, tuple(unreached))
+            return Refit(candidate, trial, field, reported, prediction, solves, values,
+                         tuple(unreached))
         # the first-order model sent a parameter to the end of its range, past where it
         # holds (creep's time constant to 0.05 s, a basin apart from the truth's): the step
         # of the others with it held is solved too, and the best kept
