@@ -38,6 +38,7 @@ from softforce_cli.calibration.calibrate import (
     match_markers,
 )
 from softforce_cli.calibration.linear_model import linear_model
+from softforce_cli.calibration.pose_covariance import marker_fit
 from softforce_cli.calibration.result import CalibrationResult
 from softforce_cli.calibration.rigid import rigid_motion_basis
 from softforce_cli.camera.frame import Markers
@@ -159,17 +160,17 @@ def studentized_deleted_residual(robot: Robot, observed: Markers, refit: Calibra
     model = robot.fe_model
     rows = robot.marker_points.subset(indices).cartesian_rows(model.node_count)
     lm = linear_model(model, refit.positions_mm, refit.tensions_n, rows)
-    used = np.array([m.used for m in refit.markers])
     markers = lm.markers(refit.tensions_n)
-    jacobian = np.hstack([rigid_motion_basis(markers, centre=markers[used].mean(axis=0)),
-                          lm.W_ea])
-    fitted = jacobian[np.repeat(used, 3)]
+    used = np.array([m.used for m in refit.markers])
+    residuals = np.array([m.residual_mm for m in refit.markers])
     i = [m.id for m in refit.markers].index(marker_id)
-    own = jacobian[3 * i:3 * i + 3]
-    residuals = np.array([m.residual_mm for m in refit.markers])[used]
-    dof = fitted.shape[0] - np.linalg.matrix_rank(fitted)
-    variance = float(np.sum(residuals**2)) / max(dof, 1)
-    covariance = variance * (np.eye(3) + own @ np.linalg.pinv(fitted.T @ fitted) @ own.T)
+    # the left-out marker's rows from the same motions as the refit's: about the used
+    # markers' centre, the left-out one among the positions
+    centre = markers[used].mean(axis=0)
+    fit = marker_fit(markers[used], residuals[used], lm.W_ea[np.repeat(used, 3)], centre)
+    own = np.hstack([rigid_motion_basis(markers[i:i + 1], centre), lm.W_ea[3 * i:3 * i + 3]])
+    # the refit keeps OutlierSettings.min_dof degrees of freedom: fit is never None here
+    covariance = fit.variance_mm2 * np.eye(3) + own @ fit.covariance @ own.T
     error = refit.markers[i].residual_mm
     return float(np.sqrt(error @ np.linalg.solve(covariance, error)))
 
