@@ -8,10 +8,15 @@ from typing import Annotated
 import numpy as np
 import typer
 from rich.markup import escape
-from rich.table import Table
-from rich.text import Text
 
-from softforce_cli.cli.common import ForceOption, JsonOption, print_json, stderr, stdout
+from softforce_cli.cli.common import (
+    ForceOption,
+    JsonOption,
+    key_value_table,
+    print_json,
+    stderr,
+    stdout,
+)
 from softforce_cli.errors import ModelError
 
 app = typer.Typer(help="Create, inspect and solve robot models.", no_args_is_help=True)
@@ -87,12 +92,7 @@ def show(
           for label, parameters in summary["effects"].items()),
         *((("picture", str(picture)),) if picture is not None else ()),
     ]
-    table = Table(title=Text(f"robot {summary['name']}"), show_header=False)
-    table.add_column()
-    table.add_column(overflow="fold")  # a long path wraps whole, not cut short
-    for key, value in rows:  # plain text: an effect's target is in brackets, not markup
-        table.add_row(Text(key), Text(value))
-    stdout.print(table)
+    stdout.print(key_value_table(f"robot {summary['name']}", rows))
 
 
 @app.command("solve")
@@ -126,17 +126,18 @@ def solve(
     if json_output:
         print_json(summary)
         return
-    table = Table(title=f"equilibrium of {robot.name}", show_header=False)
-    table.add_row("max displacement", f"{summary['max_displacement_mm']:.3f} mm "
-                                      f"(node {summary['max_displacement_node']})")
-    table.add_row("top node displacement", f"{summary['top_node_displacement_mm']} mm")
-    for cable in summary["cables"]:
-        table.add_row(f"cable {cable['name']}", f"{cable['displacement_mm']:.3f} mm, "
-                                                f"{cable['tension_n']:.4f} N")
-    table.add_row("support reaction", f"{summary['reaction_force_n']} N")
-    table.add_row("Newton iterations", str(summary["newton_iterations"]))
-    table.add_row("written", str(output))
-    stdout.print(table)
+    rows = [
+        ("max displacement", f"{summary['max_displacement_mm']:.3f} mm "
+                             f"(node {summary['max_displacement_node']})"),
+        ("top node displacement", f"{summary['top_node_displacement_mm']} mm"),
+        *((f"cable {cable['name']}", f"{cable['displacement_mm']:.3f} mm, "
+                                     f"{cable['tension_n']:.4f} N")
+          for cable in summary["cables"]),
+        ("support reaction", f"{summary['reaction_force_n']} N"),
+        ("Newton iterations", str(summary["newton_iterations"])),
+        ("written", str(output)),
+    ]
+    stdout.print(key_value_table(f"equilibrium of {robot.name}", rows))
 
 
 @app.command("reduce")
@@ -219,26 +220,23 @@ def reduce(
     if json_output:
         print_json(summary)
         return
-    table = Table(title=f"reduced model of {robot.name}", show_header=False)
-    table.add_row("basis", f"{info['modes']} modes (POD energy tolerance "
-                           f"{info['energy_tolerance']:g})")
-    table.add_row("sampled points", f"{info['sampled_points']} of {info['points']} quadrature "
-                                    f"points, in {info['sampled_elements']} of "
-                                    f"{info['elements']} elements (ECSW residual "
-                                    f"{info['ecsw_residual']:.2g})")
     box = reduction.box
-    table.add_row("validation", f"{box.rms_error_mm:.3f} mm RMS surface error at untrained "
-                                "actuations, unloaded and under a contact")
     inputs = ", ".join(f"{c.name} {lo:g}-{hi:g} {'mm' if c.control == 'displacement' else 'N'}"
                        for c, lo, hi in zip(robot.cable_specs, box.cable_min, box.cable_max,
                                             strict=True))
-    table.add_row("valid for", f"cables {inputs}; contact forces up to {box.max_force_n:g} N; "
-                               f"shapes up to {box.max_displacement_mm:.1f} mm RMS from rest "
-                               "(beyond, it warns)")
-    table.add_row("static solves", f"start from the nearest of {info['start_equilibria']} "
-                                   "of its own equilibria over the box, moved to first order")
-    table.add_row("training", f"{info['total_s']:.0f} s")
-    table.add_row("written", str(output))
-    table.add_row("use it", escape(f'add reduced = "{output.name}" under [mesh] of '
-                                   f"{robot_file.name}"))
-    stdout.print(table)
+    rows = [
+        ("basis", f"{info['modes']} modes (POD energy tolerance {info['energy_tolerance']:g})"),
+        ("sampled points", f"{info['sampled_points']} of {info['points']} quadrature points, "
+                           f"in {info['sampled_elements']} of {info['elements']} elements "
+                           f"(ECSW residual {info['ecsw_residual']:.2g})"),
+        ("validation", f"{box.rms_error_mm:.3f} mm RMS surface error at untrained actuations, "
+                       "unloaded and under a contact"),
+        ("valid for", f"cables {inputs}; contact forces up to {box.max_force_n:g} N; shapes up "
+                      f"to {box.max_displacement_mm:.1f} mm RMS from rest (beyond, it warns)"),
+        ("static solves", f"start from the nearest of {info['start_equilibria']} of its own "
+                          "equilibria over the box, moved to first order"),
+        ("training", f"{info['total_s']:.0f} s"),
+        ("written", str(output)),
+        ("use it", f'add reduced = "{output.name}" under [mesh] of {robot_file.name}'),
+    ]
+    stdout.print(key_value_table(f"reduced model of {robot.name}", rows))

@@ -20,7 +20,6 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
-from rich.text import Text
 
 from softforce_cli.camera.actuation_timeline import read_actuation_csv, with_actuation
 from softforce_cli.camera.live_source import record_live
@@ -31,6 +30,7 @@ from softforce_cli.camera.realsense import (
     iter_file_frames,
     iter_live_frames,
 )
+from softforce_cli.cli.common import key_value_table
 from softforce_cli.cli.interrupt import interrupted_exit_code, received_signal, signal_name
 from softforce_cli.errors import RecordingError
 from softforce_cli.io.atomic import check_writable
@@ -174,41 +174,28 @@ def _read_with_warnings(path: Path) -> RecordingSummary:
 def _summary_table(summary: RecordingSummary) -> Table:
     k = summary.intrinsics
     rate = summary.frame_rate_hz
-    # the file's own names (metadata, topics, markers) are plain text, not rich markup
-    table = Table(title=Text(str(summary.path)), show_header=False, box=None,
-                  title_justify="left")
-    table.add_column(style="bold")
-    table.add_column()
-
-    def add_row(key: str, value: str) -> None:
-        table.add_row(Text(key), Text(value))
-
-    add_row("frames", str(summary.frame_count))
-    add_row(
-        "duration", f"{summary.duration_s:.3f} s" + (f" ({rate:.2f} fps)" if rate else "")
-    )
-    add_row("resolution", f"{k.width}x{k.height}")
-    add_row("intrinsics", f"fx {k.fx:.3f}  fy {k.fy:.3f}  cx {k.cx:.3f}  cy {k.cy:.3f}")
+    rows = [
+        ("frames", str(summary.frame_count)),
+        ("duration", f"{summary.duration_s:.3f} s" + (f" ({rate:.2f} fps)" if rate else "")),
+        ("resolution", f"{k.width}x{k.height}"),
+        ("intrinsics", f"fx {k.fx:.3f}  fy {k.fy:.3f}  cx {k.cx:.3f}  cy {k.cy:.3f}"),
+    ]
     if k.distortion is not None:
         values = " ".join(f"{c:.6g}" for c in k.distortion.coefficients)
-        add_row("lens", f"{k.distortion.model} {values} (rectified when read)")
+        rows.append(("lens", f"{k.distortion.model} {values} (rectified when read)"))
     if summary.actuation_names is not None:
         unit = "mm" if summary.actuation_control == "displacement" else "N"
         names = ", ".join(summary.actuation_names)
-        add_row("actuation", f"{names} ({summary.actuation_control}, {unit})")
+        rows.append(("actuation", f"{names} ({summary.actuation_control}, {unit})"))
     if summary.marker_ids is not None:
-        add_row("markers", ", ".join(summary.marker_ids))
-    for name, values in summary.metadata.items():
-        add_row(f"metadata {name}", ", ".join(f"{k}={v}" for k, v in values.items()))
-    for topic in summary.topics:
-        add_row(
-            "topic",
-            f"{topic.topic}  {topic.schema or topic.message_encoding}  "
-            f"{topic.message_count} messages",
-        )
+        rows.append(("markers", ", ".join(summary.marker_ids)))
+    rows += [(f"metadata {name}", ", ".join(f"{k}={v}" for k, v in values.items()))
+             for name, values in summary.metadata.items()]
+    rows += [("topic", f"{topic.topic}  {topic.schema or topic.message_encoding}  "
+                       f"{topic.message_count} messages") for topic in summary.topics]
     if not summary.indexed:
-        add_row("index", "missing: the file was scanned (was the recording cut short?)")
-    return table
+        rows.append(("index", "missing: the file was scanned (was the recording cut short?)"))
+    return key_value_table(str(summary.path), rows)
 
 
 class _CaptureDisplay:
